@@ -1,0 +1,42 @@
+"""Orbax checkpoints of the whole training state (all lanes), written atomically.
+
+Orbax writes each step into a temporary directory and renames it when complete, so a run
+killed mid-write leaves the previous checkpoint intact; `latest_step` sees only finished ones.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Optional
+
+import jax
+
+
+class Checkpointer:
+    def __init__(self, directory, max_to_keep: int = 2):
+        import orbax.checkpoint as ocp
+
+        self._ocp = ocp
+        self.directory = Path(directory).absolute()
+        opts = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True,
+                                            enable_async_checkpointing=False)
+        self._mgr = ocp.CheckpointManager(self.directory, options=opts)
+
+    def save(self, step: int, state: Any, meta: dict) -> None:
+        ocp = self._ocp
+        self._mgr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state),
+                                                      meta=ocp.args.JsonSave(meta)), force=True)
+        self._mgr.wait_until_finished()
+
+    def latest_step(self) -> Optional[int]:
+        return self._mgr.latest_step()
+
+    def restore(self, step: int, like: Any) -> tuple[Any, dict]:
+        """Restore `step` into the structure (shapes, dtypes) of `like`."""
+        ocp = self._ocp
+        abstract = jax.tree_util.tree_map(ocp.utils.to_shape_dtype_struct, like)
+        out = self._mgr.restore(step, args=ocp.args.Composite(
+            state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore()))
+        return out["state"], dict(out["meta"])
+
+    def close(self) -> None:
+        self._mgr.close()

@@ -1,0 +1,43 @@
+"""Data: DSRL files, generated datasets and h-step chunks."""
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+from r2pac_jax.data.dsrl import (Dataset, DatasetError, dsrl_dirs, find_dsrl_file, load_dsrl,
+                                 write_dsrl)
+from r2pac_jax.tasks import TaskSpec
+
+__all__ = ["Dataset", "DatasetError", "find_dsrl_file", "load_dsrl", "write_dsrl",
+           "load_task_dataset"]
+
+
+def load_task_dataset(task: TaskSpec, dataset: Optional[str] = None,
+                      announce: Callable[[str], None] = print) -> Dataset:
+    """The training data, in order: `dataset`; a DSRL file on disk; a cached generated dataset;
+    else a freshly generated one (announced)."""
+    from r2pac_jax.data import factory
+
+    kw = dict(obs_dim=task.obs_dim, act_dim=task.act_dim, task_name=task.name)
+    if dataset:
+        announce(f"dataset: {dataset} (--dataset)")
+        return load_dsrl(dataset, **kw)
+    path = find_dsrl_file(task)
+    if path is not None:
+        announce(f"dataset: {path} (DSRL file)")
+        return load_dsrl(path, **kw)
+    path = factory.find_cached(task)
+    if path is not None:
+        announce(f"dataset: {path} (generated earlier, see its .json card)")
+        return load_dsrl(path, **kw)
+    if not factory.has_source(task):
+        raise DatasetError(
+            f"no dataset for task {task.name}: no --dataset given, no DSRL file "
+            f"{task.gym_id}-*.hdf5 in {', '.join(map(str, dsrl_dirs()))}, "
+            "and no data generator for this task. Fix: pass --dataset FILE, or set "
+            "DSRL_DATASET_DIR to the folder holding DSRL's files")
+    n = factory.default_trajectories(task)
+    announce(f"dataset: none found for {task.name}; generating {n} trajectories into "
+             f"{factory.cache_dir()} (python -m r2pac_jax.data make --task {task.name})")
+    path = factory.generate_dataset(task, n, seed=0)
+    announce(f"dataset: {path} (generated)")
+    return load_dsrl(path, **kw)

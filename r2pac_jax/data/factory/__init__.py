@@ -1,0 +1,128 @@
+"""The data factory: DSRL-format datasets made locally for registered tasks.
+
+Files go to `$R2PAC_DATA_DIR` (default `~/.cache/r2pac_jax/datasets`) as
+`{Task}-generated-s{seed}-n{trajectories}.hdf5` with a JSON card beside them. The HDF5 file is
+written atomically and the card last, so a dataset counts as present only when both exist.
+"""
+from __future__ import annotations
+
+import os
+import platform
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+
+from r2pac_jax.data.dsrl import Dataset, validate, write_dsrl
+from r2pac_jax.io import atomic_write_json
+from r2pac_jax.tasks import TaskSpec
+
+
+class FactoryError(RuntimeError):
+    pass
+
+
+def _sources() -> dict[str, dict]:
+    from r2pac_jax.data.factory import reach_avoid
+
+    return {"ReachAvoid": reach_avoid.SOURCE}
+
+
+def has_source(task: TaskSpec) -> bool:
+    return task.name in _sources()
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("R2PAC_DATA_DIR", "~/.cache/r2pac_jax/datasets")).expanduser()
+
+
+def dataset_path(task: TaskSpec, seed: int, trajectories: int) -> Path:
+    return cache_dir() / f"{task.name}-generated-s{seed}-n{trajectories}.hdf5"
+
+
+def card_path(path: Path) -> Path:
+    return path.with_suffix(".json")
+
+
+def find_cached(task: TaskSpec) -> Optional[Path]:
+    """A complete generated dataset (file and card) for the task, default size/seed first."""
+    d = cache_dir()
+    if not d.is_dir():
+        return None
+    found = [p for p in sorted(d.glob(f"{task.name}-generated-s*-n*.hdf5"))
+             if card_path(p).exists()]
+    if not found:
+        return None
+    src = _sources().get(task.name)
+    if src is not None:
+        default = dataset_path(task, 0, src["default_trajectories"])
+        if default in found:
+            return default
+    return found[0]
+
+
+def default_trajectories(task: TaskSpec) -> int:
+    src = _sources().get(task.name)
+    if src is None:
+        raise FactoryError(f"no data source for task {task.name!r} yet; tasks with one: "
+                           f"{', '.join(sorted(_sources()))}")
+    return src["default_trajectories"]
+
+
+def make_card(task: TaskSpec, ds: Dataset, seed: int, trajectories: int, source: str) -> dict:
+    import jax
+
+    import r2pac_jax
+
+    rets, costs = ds.episode_sums()
+    safe = costs <= task.kappa
+    span = task.r_max - task.r_min
+    return dict(
+        task=task.name, dsrl_id=task.dsrl_id, generated=True, seed=seed,
+        trajectories=int(len(rets)), transitions=ds.size, sources=[source],
+        kappa=task.kappa, safe_trajectories=int(safe.sum()), unsafe_trajectories=int((~safe).sum()),
+        return_range=[float(rets.min()), float(rets.max())],
+        cost_range=[float(costs.min()), float(costs.max())],
+        normalised_return_range=[float((rets.min() - task.r_min) / span),
+                                 float((rets.max() - task.r_min) / span)],
+        r_min=task.r_min, r_max=task.r_max,
+        versions=dict(r2pac_jax=r2pac_jax.__version__, jax=jax.__version__,
+                      numpy=np.__version__, python=platform.python_version()),
+    )
+
+
+def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: int = 0,
+                     progress: Optional[Callable[[int], None]] = None, plot: bool = True) -> Path:
+    """Make (or reuse) the dataset file for (task, seed, trajectories); return its path."""
+    srcs = _sources()
+    if task.name not in srcs:
+        raise FactoryError(f"no data source for task {task.name!r} yet; tasks with one: "
+                           f"{', '.join(sorted(srcs))}. Pass --dataset FILE or put DSRL's file "
+                           "in $DSRL_DATASET_DIR")
+    src = srcs[task.name]
+    n = trajectories or src["default_trajectories"]
+    if n < 1:
+        raise FactoryError(f"--trajectories must be >= 1, got {n}")
+    path = dataset_path(task, seed, n)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        probe = path.parent / f".write-test-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as e:
+        raise FactoryError(f"cache directory {path.parent} is not writable ({e}); set "
+                           "R2PAC_DATA_DIR to a writable directory") from e
+    if path.exists() and card_path(path).exists():
+        return path
+    arrays = src["generate"](n, seed, progress=progress)
+    ds = validate(arrays, str(path), task.obs_dim, task.act_dim, task.name)
+    card = make_card(task, ds, seed, n, src["name"])
+    write_dsrl(path, ds, attrs={"task": task.name, "generated": True, "seed": seed})
+    if plot:
+        from r2pac_jax.report import plot_composition
+
+        rets, costs = ds.episode_sums()
+        plot_composition(rets, costs, task.kappa, path.with_suffix(".png"),
+                         f"{task.name} generated (seed {seed}, {n} trajectories)")
+    atomic_write_json(card_path(path), card)  # last: marks the dataset complete
+    return path

@@ -1,0 +1,123 @@
+"""Vectorised evaluation with DSRL's scores.
+
+A policy is `policy_fn(params, obs[B, obs_dim], key) -> action[B, act_dim]` (pure, jittable).
+JAX environments run every episode in parallel inside one jit (vmap over episodes, scan over
+steps, episodes frozen after they end); environments stepped outside JAX (C MuJoCo) run a Python
+loop over control steps around the jitted policy. Both return per-episode returns, costs and
+lengths, and the DSRL normalised reward and cost of the episode means.
+"""
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from r2pac_jax.tasks import TaskSpec, get_task
+
+
+def dsrl_scores(mean_return, mean_cost, task: TaskSpec):
+    """Normalised reward (R - R_min) / (R_max - R_min) and cost (C + e) / (kappa + e).
+
+    e = 1 only when kappa = 0 (DSRL's convention). Works on scalars or arrays of means.
+    """
+    eps = 1.0 if task.kappa == 0 else 0.0
+    nr = (mean_return - task.r_min) / (task.r_max - task.r_min)
+    nc = (mean_cost + eps) / (task.kappa + eps)
+    return nr, nc
+
+
+def _freeze(alive, new, old):
+    """Keep `old` where an episode already ended: alive [E], leaves [E, ...]."""
+    def pick(n, o):
+        return jnp.where(alive.reshape(alive.shape + (1,) * (n.ndim - 1)), n, o)
+    return jax.tree_util.tree_map(pick, new, old)
+
+
+def rollout(policy_fn: Callable, params, env, key: jax.Array, episodes: int) -> dict:
+    """All episodes of one policy in parallel (JAX env; jittable): arrays [E]."""
+    k_reset, k_act = jax.random.split(key)
+    state = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
+    zeros = jnp.zeros((episodes,), jnp.float32)
+
+    def body(carry, k):
+        state, alive, ret, cost, length = carry
+        action = policy_fn(params, state.obs, k)
+        new = jax.vmap(env.step)(state, action)
+        ret = ret + jnp.where(alive, new.reward, 0.0)
+        cost = cost + jnp.where(alive, new.cost, 0.0)
+        length = length + alive.astype(jnp.int32)
+        state = _freeze(alive, new, state)
+        return (state, alive & ~new.done, ret, cost, length), None
+
+    init = (state, jnp.ones((episodes,), bool), zeros, zeros, jnp.zeros((episodes,), jnp.int32))
+    (_, _, ret, cost, length), _ = jax.lax.scan(body, init,
+                                                jax.random.split(k_act, env.episode_len))
+    return dict(returns=ret, costs=cost, lengths=length)
+
+
+def _rollout_python(policy_lanes: Callable, lane_params, env, keys: jax.Array, episodes: int):
+    """Lanes x episodes stepped from Python (non-JAX physics): arrays [L, E]."""
+    L = keys.shape[0]
+    n = L * episodes
+    k_reset, k_act = jax.vmap(lambda k: jax.random.split(k), out_axes=1)(keys)
+    reset_keys = jax.vmap(lambda k: jax.random.split(k, episodes))(k_reset).reshape(n, -1)
+    state = env.reset_batch(reset_keys)
+    alive = np.ones(n, bool)
+    ret = np.zeros(n)
+    cost = np.zeros(n)
+    length = np.zeros(n, np.int64)
+    step_keys = jax.vmap(lambda k: jax.random.split(k, env.episode_len), out_axes=1)(k_act)
+    for t in range(env.episode_len):
+        obs = jnp.asarray(state.obs).reshape(L, episodes, -1)
+        action = np.asarray(policy_lanes(lane_params, obs, step_keys[t])).reshape(n, -1)
+        state = env.step_batch(state, action)
+        ret += np.where(alive, np.asarray(state.reward), 0.0)
+        cost += np.where(alive, np.asarray(state.cost), 0.0)
+        length += alive
+        alive &= ~np.asarray(state.terminated | state.truncated)
+        if not alive.any():
+            break
+    shape = (L, episodes)
+    return dict(returns=ret.reshape(shape), costs=cost.reshape(shape),
+                lengths=length.reshape(shape))
+
+
+class LaneEvaluator:
+    """Evaluates L parameter sets ("lanes": seeds x hyperparameter cells) at once.
+
+    `__call__(lane_params, keys[L])` returns numpy arrays `returns`, `costs`, `lengths` [L, E]
+    and `normalized_reward`, `normalized_cost` [L]. Built once; the rollout compiles once.
+    """
+
+    def __init__(self, policy_fn: Callable, task: TaskSpec, episodes: int = 20, env=None,
+                 physics: str = "auto"):
+        self.task = task
+        self.episodes = episodes
+        self.env = env if env is not None else task.make_env(physics=physics)
+        if self.env.is_jax:
+            self._run = jax.jit(jax.vmap(
+                lambda p, k: rollout(policy_fn, p, self.env, k, episodes)))
+        else:
+            self._policy_lanes = jax.jit(jax.vmap(policy_fn))
+            self._run = lambda p, k: _rollout_python(self._policy_lanes, p, self.env, k, episodes)
+
+    def __call__(self, lane_params, keys: jax.Array) -> dict:
+        out = {k: np.asarray(v) for k, v in self._run(lane_params, keys).items()}
+        nr, nc = dsrl_scores(out["returns"].mean(-1), out["costs"].mean(-1), self.task)
+        out["normalized_reward"], out["normalized_cost"] = nr, nc
+        return out
+
+
+def evaluate(policy_fn: Callable, params, task, episodes: int = 20,
+             key: Optional[jax.Array] = None, env=None, physics: str = "auto") -> dict:
+    """Evaluate one policy: `returns[E]`, `costs[E]`, `lengths[E]`, normalised reward and cost."""
+    task = task if isinstance(task, TaskSpec) else get_task(task)
+    key = jax.random.PRNGKey(0) if key is None else key
+    lane_params = jax.tree_util.tree_map(lambda x: jnp.asarray(x)[None], params)
+    out = LaneEvaluator(policy_fn, task, episodes, env=env, physics=physics)(lane_params, key[None])
+    res = {k: v[0] for k, v in out.items()}
+    res["normalized_reward"] = float(res["normalized_reward"])
+    res["normalized_cost"] = float(res["normalized_cost"])
+    return res

@@ -1,0 +1,119 @@
+"""Tables in the paper's Table 1 format and PNG plots (dataset composition, training curves)."""
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+SAFE_LIMIT = 1.0  # a policy is safe when its normalised cost is below 1
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.2f}"
+
+
+def results_table(cells: dict[str, dict[str, dict]], columns: Sequence[str] | None = None) -> str:
+    """Markdown table: one row per task, a (reward, cost) column pair per algorithm.
+
+    cells[task][algo] = results.json-like dict with `normalized_reward` / `normalized_cost`
+    holding `mean` and `std`. Safe agents (cost < 1) are **bold**; the safe agent with the
+    highest reward in a row is marked with a star; unsafe entries are in plain text.
+    """
+    if columns is None:
+        seen: list[str] = []
+        for row in cells.values():
+            seen += [a for a in row if a not in seen]
+        columns = seen
+    head = "| Task | " + " | ".join(f"{a} reward ↑ | {a} cost ↓" for a in columns) + " |"
+    sep = "|---|" + "---|---|" * len(columns)
+    lines = [head, sep]
+    for task, row in cells.items():
+        safe_rewards = {a: r["normalized_reward"]["mean"] for a, r in row.items()
+                        if r["normalized_cost"]["mean"] < SAFE_LIMIT}
+        best = max(safe_rewards, key=safe_rewards.get) if safe_rewards else None
+        parts = []
+        for a in columns:
+            r = row.get(a)
+            if r is None:
+                parts += ["", ""]
+                continue
+            nr, nc = r["normalized_reward"], r["normalized_cost"]
+            rs = f"{_fmt(nr['mean'])} ± {_fmt(nr.get('std', 0.0))}"
+            cs = f"{_fmt(nc['mean'])} ± {_fmt(nc.get('std', 0.0))}"
+            if a in safe_rewards:
+                rs, cs = f"**{rs}**", f"**{cs}**"
+                if a == best:
+                    rs += " ★"
+            parts += [rs, cs]
+        lines.append(f"| {task} | " + " | ".join(parts) + " |")
+    lines.append("")
+    lines.append("Mean ± std over seeds of the per-seed means over evaluation episodes. **Bold**: "
+                 "safe (normalised cost < 1); ★: the safe agent with the highest reward.")
+    return "\n".join(lines)
+
+
+def _savefig(fig, path) -> Path:
+    """Save a matplotlib figure atomically as PNG."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=120, bbox_inches="tight")
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_composition(returns: np.ndarray, costs: np.ndarray, kappa: float, path, title: str):
+    """Per-trajectory cost vs return with the cost threshold (the paper's Figures 6-7)."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5, 4))
+    safe = costs <= kappa
+    ax.scatter(costs[safe], returns[safe], s=6, c="tab:blue", label=f"safe ({safe.sum()})")
+    ax.scatter(costs[~safe], returns[~safe], s=6, c="tab:orange", label=f"unsafe ({(~safe).sum()})")
+    ax.axvline(kappa, color="red", ls="--", label=f"cost threshold {kappa:g}")
+    ax.set_xlabel("episode cost")
+    ax.set_ylabel("episode return")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=8)
+    out = _savefig(fig, path)
+    plt.close(fig)
+    return out
+
+
+def plot_curves(records: Iterable[dict], keys: Sequence[str], path, title: str = ""):
+    """Training curves: records are JSONL rows with `step`, `lane` and the metric keys."""
+    plt = _plt()
+    rows = list(records)
+    fig, axes = plt.subplots(1, len(keys), figsize=(4 * len(keys), 3.2), squeeze=False)
+    for ax, key in zip(axes[0], keys):
+        lanes = sorted({r.get("lane", 0) for r in rows if key in r})
+        for lane in lanes:
+            pts = [(r["step"], r[key]) for r in rows if r.get("lane", 0) == lane and key in r]
+            if pts:
+                xs, ys = zip(*pts)
+                ax.plot(xs, ys, lw=1, label=f"lane {lane}")
+        if key == "normalized_cost":
+            ax.axhline(SAFE_LIMIT, color="red", ls="--", lw=0.8)
+        ax.set_xlabel("gradient step")
+        ax.set_title(key, fontsize=9)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    out = _savefig(fig, path)
+    plt.close(fig)
+    return out
