@@ -29,8 +29,8 @@ class Config:
     steps: int = 20_000  # per phase (critic phase, then policy phase) for two_phase
     batch_size: int = 256
     lr: float = 3e-4
-    hidden_dims: tuple = (256, 256, 256)
-    actor_hidden_dims: tuple = (256, 256, 256)  # the AWR Gaussian actor: a 3-layer MLP
+    hidden_dims: tuple = (128, 128, 128)
+    actor_hidden_dims: tuple = (128, 128, 128)  # the AWR Gaussian actor: a 3-layer MLP
     layer_norm: bool = False
     schedule: str = "two_phase"  # two_phase | joint
     # IQL critics
@@ -46,7 +46,7 @@ class Config:
     penalty_c: float = 1.0
     penalty_mode: str = "absorbing"  # absorbing: target -C/(1-g); direct: target -C
     threshold_source: str = "dataset"  # dataset | batch
-    threshold_every: int = 1000
+    threshold_every: int = 1000  # also the block: steps per compiled scan, metrics per block
     threshold_subset: int = 65536
     # policy
     guidance_scale: float = 2.0
@@ -69,7 +69,6 @@ class Config:
     eval_every: int = 5_000
     eval_episodes: int = 20
     checkpoint_every: int = 5_000
-    log_every: int = 1_000  # metrics are aggregated over blocks of this many steps
 
     # ---- derived -------------------------------------------------------------------------
     @property
@@ -81,11 +80,6 @@ class Config:
     @property
     def total_steps(self) -> int:
         return self.steps * len(self.phases)
-
-    @property
-    def block(self) -> int:
-        """Steps between threshold updates and metric aggregation (divides every segment)."""
-        return min(self.threshold_every, self.log_every)
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
@@ -116,13 +110,13 @@ PRESETS: dict[str, dict[str, Any]] = {
     # Table 3 of the paper.
     "paper": dict(steps=600_000, batch_size=1024, hidden_dims=(512, 512, 512, 512),
                   actor_hidden_dims=(512, 512, 512), flow_steps=32, num_candidates=16,
-                  eval_every=50_000, checkpoint_every=50_000, threshold_every=1000,
-                  log_every=1000),
+                  eval_every=50_000, checkpoint_every=50_000, threshold_every=1000),
     # Small nets and few steps: minutes on a 2-core CPU.
-    "quick": dict(steps=20_000, batch_size=256, hidden_dims=(256, 256, 256),
-                  actor_hidden_dims=(256, 256, 256), flow_steps=32, num_candidates=16,
+    # 3x128 runs ~160 critic steps/s on 2 cores (3x256: ~77; benchmarks/RESULTS.md).
+    "quick": dict(steps=20_000, batch_size=256, hidden_dims=(128, 128, 128),
+                  actor_hidden_dims=(128, 128, 128), flow_steps=32, num_candidates=16,
                   eval_every=5_000, checkpoint_every=5_000, threshold_every=500,
-                  log_every=500, threshold_subset=16384),
+                  threshold_subset=16384),
 }
 
 CHOICES = {
@@ -191,18 +185,15 @@ def validate_config(cfg: Config, spec: Optional[TaskSpec] = None) -> None:
         raise ConfigError(f"chunk_len {cfg.chunk_len} is longer than an episode of {spec.name} "
                           f"({spec.episode_len} steps); choose --chunk-len <= {spec.episode_len}")
     for k in ("steps", "batch_size", "flow_steps", "num_candidates", "seeds", "threshold_every",
-              "log_every", "eval_every", "checkpoint_every", "threshold_subset", "num_critics"):
+              "eval_every", "checkpoint_every", "threshold_subset", "num_critics"):
         if getattr(cfg, k) < 1:
             raise ConfigError(f"{k} must be >= 1, got {getattr(cfg, k)}")
     if cfg.eval_episodes < 0:
         raise ConfigError(f"eval_episodes must be >= 0, got {cfg.eval_episodes}")
-    b = cfg.block
     for k in ("steps", "eval_every", "checkpoint_every"):
-        if getattr(cfg, k) % b:
-            raise ConfigError(f"{k}={getattr(cfg, k)} must be a multiple of "
-                              f"min(threshold_every, log_every)={b}")
-    if cfg.threshold_every % b or cfg.log_every % b:
-        raise ConfigError("threshold_every and log_every must be multiples of the smaller one")
+        if getattr(cfg, k) % cfg.threshold_every:
+            raise ConfigError(f"{k}={getattr(cfg, k)} must be a multiple of threshold_every="
+                              f"{cfg.threshold_every} (the compiled block)")
 
 
 def check_hparams(alpha, penalty_c, guidance_scale) -> None:
