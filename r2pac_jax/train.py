@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import sys
 import time
@@ -95,6 +96,24 @@ def make_train(cfg: Config, data: ChunkedData, obs_dim: int, act_dim: int):
     return train
 
 
+@functools.lru_cache(maxsize=16)
+def compiled(cfg: Config, obs_dim: int, act_dim: int):
+    """Jitted, lane-vmapped pieces for a config, shared by every `Run` with the same config
+    (a resumed run or a sweep's next group reuses the compiled programs)."""
+    agent = Agent(cfg, obs_dim, act_dim)
+    blocks = {p: jax.jit(jax.vmap(make_block(agent, p), in_axes=(0, 0, None)))
+              for p in cfg.phases}
+    return agent, jax.jit(jax.vmap(agent.init)), blocks, jax.jit(jax.vmap(agent.policy_params))
+
+
+@functools.lru_cache(maxsize=16)
+def lane_evaluator(cfg: Config, task: TaskSpec, episodes: int, physics: str):
+    from r2pac_jax.evaluate import LaneEvaluator
+
+    agent = compiled(cfg, task.obs_dim, task.act_dim)[0]
+    return LaneEvaluator(agent.act, task, episodes, physics=physics)
+
+
 # ---------------------------------------------------------------------------------------------
 # Lanes: seeds x hyperparameter cells
 
@@ -155,17 +174,10 @@ class Run:
             raise ConfigError(f"dataset {ds.source} has obs/act sizes {ds.obs_dim}/{ds.act_dim}, "
                               f"task {task.name} needs {task.obs_dim}/{task.act_dim}")
         self.data = chunk_dataset(cfg, task, ds)
-        self.agent = Agent(cfg, task.obs_dim, task.act_dim)
-        self._init = jax.jit(jax.vmap(self.agent.init))
-        self._blocks = {p: jax.jit(jax.vmap(make_block(self.agent, p), in_axes=(0, 0, None)))
-                        for p in cfg.phases}
-        self._policy_params = jax.jit(jax.vmap(self.agent.policy_params))
-        self.evaluator = None
-        if cfg.eval_episodes > 0:
-            from r2pac_jax.evaluate import LaneEvaluator
-
-            self.evaluator = LaneEvaluator(self.agent.act, task, cfg.eval_episodes,
-                                           physics=physics)
+        self.agent, self._init, self._blocks, self._policy_params = compiled(
+            cfg, task.obs_dim, task.act_dim)
+        self.evaluator = (lane_evaluator(cfg, task, cfg.eval_episodes, physics)
+                          if cfg.eval_episodes > 0 else None)
 
     # schedule ---------------------------------------------------------------------------------
     @property
@@ -192,7 +204,9 @@ class Run:
         return self.evaluator(pp, self.eval_keys(step))
 
     # main loop ---------------------------------------------------------------------------------
-    def run(self, resume: bool = False) -> dict:
+    def run(self, resume: bool = False, stop_after: Optional[int] = None) -> Optional[dict]:
+        """Train to the end (or stop after `stop_after` blocks, as an interruption would, and
+        return None); with `resume`, continue from the latest checkpoint in the run directory."""
         from r2pac_jax.checkpoint import Checkpointer
         from r2pac_jax.metrics_log import MetricsLog
 
@@ -232,6 +246,12 @@ class Run:
         t_start = time.time()
         steps_timed = 0
         for i in range(done_blocks, len(schedule)):
+            if stop_after is not None and i - done_blocks >= stop_after:
+                if bar is not None:
+                    bar.close()
+                logs.close()
+                ckpt.close()
+                return None
             phase, phase_step = schedule[i]
             step = (i + 1) * cfg.threshold_every
             t0 = time.time()
@@ -280,12 +300,15 @@ class Run:
         return results
 
     def save_policy(self, state: AgentState) -> None:
+        """The final policy parameters of every lane (what `load_policy` reads)."""
         from r2pac_jax.checkpoint import Checkpointer
 
-        pp = self._policy_params(state, self.lanes.hp)
         pol = Checkpointer(self.out / "policy", max_to_keep=1)
-        pol.save(0, pp, {"task": self.task.name, "lanes": self.lanes.size,
-                         "obs_dim": self.task.obs_dim, "act_dim": self.task.act_dim})
+        step = self.cfg.total_steps
+        if pol.latest_step() != step:  # a resumed finished run already saved this very policy
+            pp = self._policy_params(state, self.lanes.hp)
+            pol.save(step, pp, {"task": self.task.name, "lanes": self.lanes.size,
+                                "obs_dim": self.task.obs_dim, "act_dim": self.task.act_dim})
         pol.close()
 
     def results(self, state: AgentState, ev: Optional[dict], wall: float, steps: int) -> dict:

@@ -1,0 +1,58 @@
+import os
+
+os.environ.setdefault("R2PAC_NO_TENSORBOARD", "1")
+os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from r2pac_jax.config import make_config  # noqa: E402
+
+TINY = dict(steps=20, batch_size=32, hidden_dims=(16, 16), actor_hidden_dims=(16, 16),
+            threshold_every=10, eval_every=10, checkpoint_every=10, flow_steps=4,
+            num_candidates=4, threshold_subset=256, eval_episodes=2, seeds=2)
+
+
+def tiny_config(algo="r2pac", task="ReachAvoid", **kw):
+    over = dict(TINY)
+    over.update(kw)
+    return make_config(task, algo, "quick", over)
+
+
+@pytest.fixture
+def data_dir(tmp_path, monkeypatch):
+    """Isolated dataset caches for tests."""
+    monkeypatch.setenv("R2PAC_DATA_DIR", str(tmp_path / "gen"))
+    monkeypatch.setenv("DSRL_DATASET_DIR", str(tmp_path / "dsrl"))
+    return tmp_path
+
+
+def toy_arrays(episodes=((4, "timeout"), (3, "terminal")), obs_dim=3, act_dim=2, seed=0):
+    """A small DSRL-format dataset with consistent episodes (next_obs[t] == obs[t+1] inside)."""
+    rng = np.random.default_rng(seed)
+    parts = {k: [] for k in ("observations", "next_observations", "actions", "rewards", "costs",
+                             "terminals", "timeouts")}
+    for length, end in episodes:
+        obs = rng.normal(size=(length + 1, obs_dim)).astype(np.float32)
+        parts["observations"].append(obs[:-1])
+        parts["next_observations"].append(obs[1:])
+        parts["actions"].append(rng.uniform(-1, 1, (length, act_dim)).astype(np.float32))
+        parts["rewards"].append(rng.normal(size=length).astype(np.float32))
+        parts["costs"].append((rng.uniform(size=length) < 0.3).astype(np.float32))
+        term = np.zeros(length, bool)
+        tout = np.zeros(length, bool)
+        (term if end == "terminal" else tout)[-1] = True
+        parts["terminals"].append(term)
+        parts["timeouts"].append(tout)
+    return {k: np.concatenate(v) for k, v in parts.items()}
+
+
+@pytest.fixture(scope="session")
+def reach_avoid_data(tmp_path_factory):
+    """A small generated ReachAvoid dataset (60 trajectories), shared across tests."""
+    from r2pac_jax.data.dsrl import validate
+    from r2pac_jax.data.factory import reach_avoid
+
+    arrays = reach_avoid.generate(60, seed=0)
+    return validate(arrays, "reach_avoid_test")

@@ -1,0 +1,123 @@
+import h5py
+import numpy as np
+import pytest
+
+from conftest import toy_arrays
+from r2pac_jax.data.dsrl import (DatasetError, find_dsrl_file, load_dsrl, validate, write_dsrl)
+from r2pac_jax.tasks import get_task
+
+
+def _write_raw(path, arrays):
+    with h5py.File(path, "w") as f:
+        for k, v in arrays.items():
+            f.create_dataset(k, data=v)
+
+
+def test_roundtrip_is_exact(tmp_path):
+    arrays = toy_arrays()
+    p = write_dsrl(tmp_path / "x.hdf5", arrays)
+    ds = load_dsrl(p)
+    for k, v in arrays.items():
+        np.testing.assert_array_equal(getattr(ds, k), v)
+    assert ds.terminals.dtype == bool and ds.observations.dtype == np.float32
+    starts, ends = ds.episode_bounds()
+    np.testing.assert_array_equal(starts, [0, 4])
+    np.testing.assert_array_equal(ends, [3, 6])
+
+
+def test_reader_accepts_float_flags_and_column_vectors(tmp_path):
+    arrays = toy_arrays()
+    arrays["terminals"] = arrays["terminals"].astype(np.float32)[:, None]
+    arrays["rewards"] = arrays["rewards"][:, None]
+    _write_raw(tmp_path / "y.hdf5", arrays)
+    ds = load_dsrl(tmp_path / "y.hdf5")
+    assert ds.terminals.dtype == bool and ds.rewards.shape == (7,)
+
+
+def test_missing_key_names_file_key_and_fix(tmp_path):
+    arrays = toy_arrays()
+    del arrays["costs"]
+    _write_raw(tmp_path / "bad.hdf5", arrays)
+    with pytest.raises(DatasetError) as e:
+        load_dsrl(tmp_path / "bad.hdf5", task_name="ReachAvoid")
+    msg = str(e.value)
+    assert "bad.hdf5" in msg and "'costs'" in msg and "missing key" in msg
+    assert "python -m r2pac_jax.data make --task ReachAvoid" in msg
+
+
+def test_wrong_observation_size_names_task(tmp_path):
+    p = write_dsrl(tmp_path / "x.hdf5", toy_arrays(obs_dim=5))
+    with pytest.raises(DatasetError, match="has 5 columns but task ReachAvoid has observations "
+                                           "of size 6"):
+        load_dsrl(p, obs_dim=6, act_dim=2, task_name="ReachAvoid")
+
+
+def test_non_finite_values_are_rejected_with_row():
+    arrays = toy_arrays()
+    arrays["rewards"][2] = np.nan
+    with pytest.raises(DatasetError, match=r"key 'rewards': 1 rows hold NaN or inf \(first at row 2\)"):
+        validate(arrays, "f.hdf5")
+
+
+def test_bad_flags_rejected():
+    arrays = toy_arrays()
+    arrays["timeouts"] = arrays["timeouts"].astype(np.float32) * 2
+    with pytest.raises(DatasetError, match="flags must be bool or 0/1"):
+        validate(arrays, "f.hdf5")
+
+
+def test_row_count_mismatch():
+    arrays = toy_arrays()
+    arrays["actions"] = arrays["actions"][:-1]
+    with pytest.raises(DatasetError, match="key 'actions': has 6 rows but 'observations' has 7"):
+        validate(arrays, "f.hdf5")
+
+
+def test_actions_outside_box_rejected():
+    arrays = toy_arrays()
+    arrays["actions"][0, 0] = 3.0
+    with pytest.raises(DatasetError, match="outside the action box"):
+        validate(arrays, "f.hdf5")
+
+
+def test_unterminated_last_episode_rejected():
+    arrays = toy_arrays()
+    arrays["terminals"][-1] = False
+    with pytest.raises(DatasetError, match="last transition ends no episode"):
+        validate(arrays, "f.hdf5")
+
+
+def test_discontinuous_episode_rejected():
+    arrays = toy_arrays()
+    arrays["timeouts"][3] = False  # two episodes glued together without a flag
+    with pytest.raises(DatasetError, match="not followed by their next observation"):
+        validate(arrays, "f.hdf5")
+
+
+def test_unreadable_and_missing_files(tmp_path):
+    with pytest.raises(DatasetError, match="no such file"):
+        load_dsrl(tmp_path / "nope.hdf5")
+    (tmp_path / "junk.hdf5").write_text("not hdf5")
+    with pytest.raises(DatasetError, match="cannot be read as HDF5"):
+        load_dsrl(tmp_path / "junk.hdf5")
+
+
+def test_writer_is_atomic_and_validates_first(tmp_path):
+    good = write_dsrl(tmp_path / "d.hdf5", toy_arrays())
+    before = good.read_bytes()
+    bad = toy_arrays()
+    bad["observations"][0, 0] = np.inf
+    with pytest.raises(DatasetError):
+        write_dsrl(good, bad)
+    assert good.read_bytes() == before  # the existing file is untouched
+    assert [p.name for p in tmp_path.iterdir()] == ["d.hdf5"]  # no temporary left behind
+
+
+def test_find_dsrl_file_by_task(tmp_path, monkeypatch):
+    monkeypatch.setenv("DSRL_DATASET_DIR", str(tmp_path))
+    task = get_task("CarGoal1")
+    assert find_dsrl_file(task) is None
+    (tmp_path / "SafetyCarGoal1Gymnasium-v0-120-999.hdf5").write_bytes(b"")
+    (tmp_path / "SafetyCarGoal1Gymnasium-v0-120-1671.hdf5").write_bytes(b"")
+    (tmp_path / "SafetyCarGoal2Gymnasium-v0-120-4105.hdf5").write_bytes(b"")
+    assert find_dsrl_file(task).name == "SafetyCarGoal1Gymnasium-v0-120-1671.hdf5"
