@@ -191,9 +191,20 @@ class Run:
             return False
         return last or phase_step % self.cfg.eval_every == 0
 
+    def _place(self, tree):
+        """Spread the lane axis over the local devices when it divides evenly (jax.sharding);
+        XLA then partitions the vmapped program along lanes. A no-op on one device."""
+        devices = jax.local_devices()
+        if len(devices) < 2 or self.lanes.size % len(devices):
+            return tree
+        from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+        sharding = NamedSharding(Mesh(np.array(devices), ("lanes",)), PartitionSpec("lanes"))
+        return jax.device_put(tree, sharding)
+
     def init_state(self) -> AgentState:
         keys = jnp.stack([jax.random.PRNGKey(s) for s in self.lanes.seeds])
-        return self._init(keys, self.lanes.hp)
+        return self._place(self._init(keys, self.lanes.hp))
 
     def eval_keys(self, step: int) -> jax.Array:
         return jnp.stack([jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(s), 1), step)
@@ -220,6 +231,7 @@ class Run:
             latest = ckpt.latest_step()
             if latest is not None:
                 state, meta = ckpt.restore(latest, state)
+                state = self._place(state)
                 done_blocks = int(meta["blocks_done"])
                 resume_step = latest
                 self.log(f"resuming {self.out} from step {latest}")
@@ -234,6 +246,7 @@ class Run:
             seeds=self.lanes.seeds, cells=self.lanes.cells, cell_hparams=self.lanes.cell_hparams,
             task=self.task.name, dataset=self.dataset_label, physics=self.physics))
         logs = MetricsLog(self.out, resume_step=resume_step)
+        hp = self._place(self.lanes.hp)
         schedule = self.schedule
         total = len(schedule) * cfg.threshold_every
         bar = None
@@ -255,7 +268,7 @@ class Run:
             phase, phase_step = schedule[i]
             step = (i + 1) * cfg.threshold_every
             t0 = time.time()
-            state, metrics = self._blocks[phase](state, self.lanes.hp, self.data)
+            state, metrics = self._blocks[phase](state, hp, self.data)
             metrics = jax.tree_util.tree_map(np.asarray, metrics)  # waits for the block
             dt = time.time() - t0
             steps_timed += cfg.threshold_every

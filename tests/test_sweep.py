@@ -1,0 +1,143 @@
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from r2pac_jax import sweep as sw
+
+TINY_CONFIG = textwrap.dedent("""
+    [config]
+    steps = 20
+    batch_size = 32
+    hidden_dims = [16, 16]
+    actor_hidden_dims = [16, 16]
+    threshold_every = 10
+    eval_every = 20
+    checkpoint_every = 10
+    flow_steps = 4
+    num_candidates = 4
+    threshold_subset = 256
+""")
+
+
+def _write(tmp_path, body, name="s.toml"):
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(body))
+    return p
+
+
+def test_shipped_sweep_files_parse_and_group():
+    root = Path(__file__).resolve().parents[1] / "sweeps"
+    s = sw.load_sweep(root / "alpha_h.toml")
+    assert len(s.cells) == 20 and len(s.groups) == 4  # alpha is vmapped, h splits groups
+    assert all(len(g.cells) == 5 for g in s.groups)
+    s = sw.load_sweep(root / "alpha_cbar.toml")
+    assert len(s.cells) == 24 and len(s.groups) == 2  # one program per penalty mode
+    s = sw.load_sweep(root / "alpha_h.toml", task_override="CarGoal1")
+    assert {c.task for c in s.cells} == {"CarGoal1"}
+    for f in ("ballrun_alpha_h.toml", "cargoal2_h.toml"):
+        assert sw.load_sweep(root / f).cells
+
+
+@pytest.mark.parametrize("body,message", [
+    ('task = "ReachAvoid"\nbogus = 1\n', "unknown key"),
+    ('task = "ReachAvoid"\n[grid]\nquantile_alpha = []\n', "is empty"),
+    ('task = "ReachAvoid"\n[grid]\nquantile_alpha = [0.5, 1.5]\n', r"quantile_alpha must lie in \(0, 1\)"),
+    ('task = "ReachAvoid"\n[grid]\nchunk_len = [0, 5]\n', "chunk_len must be >= 1"),
+    ('task = "ReachAvoid"\n[grid]\nchunk_len = ["five"]\n', "chunk_len must be an integer"),
+    ('task = "ReachAvoid"\n[grid]\nnot_a_key = [1]\n', "unknown config key 'not_a_key'"),
+    ('task = "ReachAvoid"\nalgo = "ppo"\n', "unknown algo 'ppo'"),
+    ('[grid]\nquantile_alpha = [0.5]\n', "no task"),
+    ('task = "Nope"\n', "unknown task 'Nope'"),
+    ('task = "ReachAvoid"\nseeds = 0\n', "seeds must be >= 1"),
+    ('task = "ReachAvoid"\n[grid]\nquantile_alpha = 0.5\n', "must be a list"),
+])
+def test_bad_sweep_files_fail_before_running(tmp_path, body, message):
+    p = _write(tmp_path, body)
+    with pytest.raises((sw.SweepError, KeyError)) as e:
+        sw.load_sweep(p)
+    import re
+
+    assert re.search(message, str(e.value)), str(e.value)
+
+
+def test_task_without_data_is_caught_before_running(tmp_path, monkeypatch, data_dir):
+    from r2pac_jax.data import factory
+
+    p = _write(tmp_path, 'task = "BallRun"\n')
+    monkeypatch.setattr(factory, "has_source", lambda task: False)
+    s = sw.load_sweep(p)
+    with pytest.raises(sw.SweepError, match="task BallRun has no data"):
+        sw.check_data(s)
+    assert sw.main([str(p), "--out", str(tmp_path / "o")]) == 2
+
+
+def test_sweep_runs_survives_interruption_and_reports(tmp_path, data_dir):
+    body = ('task = "ReachAvoid"\nseeds = 1\neval_episodes = 2\npreset = "quick"\n' + TINY_CONFIG
+            + "\n[grid]\nquantile_alpha = [0.5, 0.9]\nchunk_len = [1, 3]\n")
+    p = _write(tmp_path, body)
+    s = sw.load_sweep(p)
+    assert len(s.groups) == 2
+    # uninterrupted reference
+    ref = sw.run_sweep(p, tmp_path / "ref", log=lambda m: None, progress=False)
+    # interrupted: first group finished, second stopped after 1 of its 4 blocks
+    out = tmp_path / "run"
+    sw.run_group(s, s.groups[0], out, log=lambda m: None, progress=False)
+    from r2pac_jax.data import load_task_dataset
+    from r2pac_jax.tasks import get_task
+    from r2pac_jax.train import Lanes, Run
+
+    g = s.groups[1]
+    cfg = s.configs[g.group_id]
+    lanes = Lanes.build(cfg, s.seeds, [{k: v for k, v in c.values if k in sw.VMAPPED}
+                                       for c in g.cells])
+    ds = load_task_dataset(get_task("ReachAvoid"), announce=lambda m: None)
+    Run(cfg, get_task("ReachAvoid"), ds, out / "groups" / g.group_id, lanes, progress=False,
+        log=lambda m: None).run(stop_after=1)
+    first_cell = out / "cells" / f"{s.groups[0].cells[0].cell_id}.json"
+    mtime = first_cell.stat().st_mtime_ns
+    msgs = []
+    sw.run_sweep(p, out, log=msgs.append, progress=False)
+    assert any("1 groups already finished" in m for m in msgs)
+    assert first_cell.stat().st_mtime_ns == mtime  # the finished group was not rerun
+    a = {k: (v["normalized_reward"], v["normalized_cost"]) for k, v in sw.finished_cells(ref).items()}
+    b = {k: (v["normalized_reward"], v["normalized_cost"]) for k, v in sw.finished_cells(out).items()}
+    assert a == b and len(a) == 4
+    table = (out / "table.csv").read_text().splitlines()
+    assert len(table) == 5 and table[0].startswith("task,algo,chunk_len,quantile_alpha")
+    md = (out / "table.md").read_text()
+    assert md.count("| ReachAvoid | r2pac |") == 4
+    assert (out / "score_vs_quantile_alpha.png").exists() and (out / "score_vs_chunk_len.png").exists()
+    assert list((out / "curves").glob("*.png"))
+    assert sw.main(["report", str(out)]) == 0
+
+
+def test_lanes_shard_over_local_devices(tmp_path, data_dir):
+    """With two (simulated) CPU devices the lane axis is split across them."""
+    code = textwrap.dedent(f"""
+        import jax, numpy as np
+        from conftest import tiny_config
+        from r2pac_jax.data.dsrl import validate
+        from r2pac_jax.data.factory import reach_avoid
+        from r2pac_jax.tasks import get_task
+        from r2pac_jax.train import Lanes, Run
+        assert len(jax.local_devices()) == 2
+        cfg = tiny_config(eval_episodes=0)
+        ds = validate(reach_avoid.generate(20, seed=0), "x")
+        run = Run(cfg, get_task("ReachAvoid"), ds, {str(tmp_path / 'r')!r}, Lanes.build(cfg, [0, 1]),
+                  progress=False, log=lambda m: None)
+        st = run.init_state()
+        print("DEVICES", len(st.step.sharding.device_set))
+        res = run.run(resume=True)
+        print("OK", res["total_steps"])
+    """)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
+               PYTHONPATH=str(Path(__file__).parent))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         timeout=300)
+    assert "DEVICES 2" in out.stdout, out.stderr[-2000:]
+    assert "OK 40" in out.stdout, out.stderr[-2000:]
