@@ -141,3 +141,24 @@ def test_lanes_shard_over_local_devices(tmp_path, data_dir):
                          timeout=300)
     assert "DEVICES 2" in out.stdout, out.stderr[-2000:]
     assert "OK 40" in out.stdout, out.stderr[-2000:]
+
+
+@pytest.mark.slow
+def test_ray_launcher_on_a_local_instance(tmp_path, data_dir):
+    """Slow (about 80 s: Ray workers import JAX and compile); run with -m slow."""
+    ray = pytest.importorskip("ray", reason="pip install -e '.[ray]' to test the Ray launcher")
+    body = ('task = "ReachAvoid"\nseeds = 1\neval_episodes = 2\npreset = "quick"\n' + TINY_CONFIG
+            + "\n[grid]\nquantile_alpha = [0.5, 0.9]\n")
+    p = _write(tmp_path, body)
+    # the worker processes inherit the dataset cache through the environment
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False,
+             runtime_env={"env_vars": {"R2PAC_DATA_DIR": os.environ["R2PAC_DATA_DIR"],
+                                       "R2PAC_NO_TENSORBOARD": "1",
+                                       "PYTHONPATH": str(Path(__file__).resolve().parents[1])}})
+    try:
+        out = sw.run_sweep(p, tmp_path / "ray", launcher="ray", log=lambda m: None)
+    finally:
+        ray.shutdown()
+    cells = sw.finished_cells(out)
+    assert len(cells) == 2 and all("normalized_reward" in c for c in cells.values())
+    assert (out / "table.md").exists()
