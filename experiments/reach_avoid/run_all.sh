@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# The ReachAvoid experiment of the core issue: every algorithm over 3 seeds, the sensitivity
+# sweeps, and re-evaluation of each trained run under the three candidate-selection rules.
+# Resumable: rerunning skips finished runs and cells (each run continues from its checkpoint).
+#   bash experiments/reach_avoid/run_all.sh [OUT_DIR]     (default runs/reach_avoid)
+# Then: python experiments/reach_avoid/summarise.py OUT_DIR
+set -euo pipefail
+OUT="${1:-runs/reach_avoid}"
+PY="${PYTHON:-python}"
+mkdir -p "$OUT"
+for algo in r2pac bc-all bc-safe r2pac-no-penalty r2pac-no-vc r2pac-awr r2pac-awr-flow r2pac-hj; do
+  if [ ! -f "$OUT/$algo/results.json" ]; then
+    resume=""; [ -d "$OUT/$algo/checkpoints" ] && resume="--resume"
+    "$PY" -m r2pac_jax.train --task ReachAvoid --algo "$algo" --preset quick --seeds 3 \
+      --baselines none --out "$OUT/$algo" --no-progress $resume
+  fi
+done
+"$PY" -m r2pac_jax.sweep experiments/reach_avoid/sensitivity_absorbing.toml --out "$OUT/sweep_absorbing" --no-progress
+"$PY" -m r2pac_jax.sweep experiments/reach_avoid/sensitivity_direct.toml --out "$OUT/sweep_direct" --no-progress
+"$PY" -m r2pac_jax.sweep experiments/reach_avoid/chunk_len.toml --out "$OUT/sweep_h" --no-progress
+"$PY" experiments/reach_avoid/summarise.py "$OUT"
