@@ -121,3 +121,65 @@ def evaluate(policy_fn: Callable, params, task, episodes: int = 20,
     res["normalized_reward"] = float(res["normalized_reward"])
     res["normalized_cost"] = float(res["normalized_cost"])
     return res
+
+
+def evaluate_run(run_dir, episodes: int = 20, selection: Optional[str] = None,
+                 guidance_scale: Optional[float] = None, num_candidates: Optional[int] = None,
+                 physics: str = "auto", seed: int = 123) -> dict:
+    """Re-evaluate every lane of a finished run under other inference settings.
+
+    The trained parameters are not touched: candidate selection, guidance scale and the number
+    of candidates only act at sampling time. Returns per-lane arrays as `LaneEvaluator` does.
+    """
+    import dataclasses as dc
+    import json
+    from pathlib import Path
+
+    from r2pac_jax.agents.r2pac import Agent
+    from r2pac_jax.config import Config
+    from r2pac_jax.policy import restore_policy_params
+
+    run_dir = Path(run_dir)
+    cfg = Config.from_dict(json.loads((run_dir / "config.json").read_text()))
+    changes = {k: v for k, v in dict(selection=selection, num_candidates=num_candidates).items()
+               if v is not None}
+    cfg = dc.replace(cfg, **changes)
+    task = get_task(cfg.task)
+    agent = Agent(cfg, task.obs_dim, task.act_dim)
+    pp, lanes = restore_policy_params(run_dir, agent)
+    if guidance_scale is not None:
+        pp["guidance"] = jnp.full_like(pp["guidance"], guidance_scale)
+    keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(seed), s) for s in lanes["seeds"]])
+    out = LaneEvaluator(agent.act, task, episodes, physics=physics)(pp, keys)
+    out["seeds"] = lanes["seeds"]
+    return out
+
+
+def main(argv=None) -> int:
+    """`python -m r2pac_jax.evaluate RUN_DIR [--selection RULE] [--guidance W] [--episodes N]`."""
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m r2pac_jax.evaluate",
+                                 description="Re-evaluate a finished run (all seeds) under other "
+                                             "inference settings.")
+    ap.add_argument("run_dir")
+    ap.add_argument("--episodes", type=int, default=20)
+    ap.add_argument("--selection", choices=["min_qc", "safe_then_reward", "first"], default=None)
+    ap.add_argument("--guidance", type=float, default=None)
+    ap.add_argument("--candidates", type=int, default=None)
+    ap.add_argument("--physics", default="auto")
+    args = ap.parse_args(argv)
+    out = evaluate_run(args.run_dir, args.episodes, args.selection, args.guidance,
+                       args.candidates, args.physics)
+    nr, nc = out["normalized_reward"], out["normalized_cost"]
+    for s, r, c in zip(out["seeds"], nr, nc):
+        print(f"seed {s}: normalized reward {r:.3f}, normalized cost {c:.3f}")
+    print(f"mean: normalized reward {np.mean(nr):.3f} ± {np.std(nr):.3f}, "
+          f"normalized cost {np.mean(nc):.3f} ± {np.std(nc):.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main())

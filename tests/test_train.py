@@ -144,6 +144,11 @@ def test_cli_end_to_end_and_load_policy(data_dir, tmp_path, capsys):
     assert b.shape == (4, 2)
     with pytest.raises(IndexError, match="out of range"):
         r2pac_jax.load_policy(out, lane=2)
+    # re-evaluation under another selection rule, without retraining
+    from r2pac_jax.evaluate import evaluate_run
+
+    ev = evaluate_run(out, episodes=2, selection="first", guidance_scale=1.0)
+    assert ev["returns"].shape == (2, 2) and len(ev["normalized_reward"]) == 2
 
 
 def test_cli_errors(data_dir, capsys, tmp_path):
@@ -162,3 +167,17 @@ def test_cli_errors(data_dir, capsys, tmp_path):
     assert main(["--task", "CarGoal2", "--baselines", "none", "--out", str(tmp_path / "z")]) == 2
     err = capsys.readouterr().err
     assert "no dataset for task CarGoal2" in err and "--dataset" in err
+
+
+def test_tensorboard_and_jsonl_logs(tmp_path):
+    from r2pac_jax.metrics_log import MetricsLog
+
+    log = MetricsLog(tmp_path, tensorboard=True)
+    log.write("metrics", {"step": 10, "loss": 1.5, "phase": "critic"})
+    log.write("metrics", {"step": 20, "loss": 1.0, "phase": "critic"})
+    log.close()
+    assert [r["loss"] for r in log.read("metrics")] == [1.5, 1.0]
+    assert list((tmp_path / "tb").glob("events.out.tfevents.*"))
+    # a resumed log drops rows written after the checkpoint it resumes from
+    MetricsLog(tmp_path, resume_step=10, tensorboard=False).close()
+    assert [r["step"] for r in MetricsLog(tmp_path, tensorboard=False).read("metrics")] == [10]
