@@ -16,7 +16,8 @@ class MetricsLog:
     from) are dropped, so a resumed run's files equal an uninterrupted run's.
     """
 
-    def __init__(self, directory, resume_step: Optional[int] = None, tensorboard: bool = True):
+    def __init__(self, directory, resume_step: Optional[int] = None,
+                 tensorboard: Optional[bool] = None):
         self.dir = Path(directory)
         self.dir.mkdir(parents=True, exist_ok=True)
         if resume_step is not None:
@@ -25,7 +26,9 @@ class MetricsLog:
                         if ln.strip() and json.loads(ln).get("step", 0) <= resume_step]
                 atomic_write_text(f, "".join(k + "\n" for k in keep))
         self._tb = None
-        if tensorboard and os.environ.get("R2PAC_NO_TENSORBOARD") != "1":
+        if tensorboard is None:  # default: on, unless R2PAC_NO_TENSORBOARD=1
+            tensorboard = os.environ.get("R2PAC_NO_TENSORBOARD") != "1"
+        if tensorboard:
             try:
                 from tensorboardX import SummaryWriter
 
