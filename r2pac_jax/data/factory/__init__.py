@@ -1,5 +1,9 @@
 """The data factory: DSRL-format datasets made locally for registered tasks.
 
+A source is a dict: `name`, `generate(n_trajectories, seed, progress) -> DSRL arrays`,
+`default_trajectories`, and optionally `oversample` (generate that many times more
+trajectories, then thin them to the requested number with DSRL's density grid).
+
 Files go to `$R2PAC_DATA_DIR` (default `~/.cache/r2pac_jax/datasets`) as
 `{Task}-generated-s{seed}-n{trajectories}.hdf5` with a JSON card beside them. The HDF5 file is
 written atomically and the card last, so a dataset counts as present only when both exist.
@@ -114,9 +118,20 @@ def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: i
                            "R2PAC_DATA_DIR to a writable directory") from e
     if path.exists() and card_path(path).exists():
         return path
-    arrays = src["generate"](n, seed, progress=progress)
+    oversample = int(src.get("oversample", 1))
+    arrays = src["generate"](n * oversample, seed, progress=progress)
+    thinning = None
+    if oversample > 1:  # DSRL's density grid over (cost, return), see thinning.py
+        from r2pac_jax.data.factory.thinning import select_episodes, thin_by_density
+
+        raw = validate(arrays, str(path), task.obs_dim, task.act_dim, task.name)
+        rets, costs = raw.episode_sums()
+        keep = thin_by_density(rets, costs, n, seed=seed)
+        arrays = select_episodes(arrays, keep)
+        thinning = dict(generated=int(len(rets)), kept=int(keep.size), grid="20x20 (cost, return)")
     ds = validate(arrays, str(path), task.obs_dim, task.act_dim, task.name)
     card = make_card(task, ds, seed, n, src["name"])
+    card["thinning"] = thinning
     write_dsrl(path, ds, attrs={"task": task.name, "generated": True, "seed": seed})
     if plot:
         from r2pac_jax.report import plot_composition
