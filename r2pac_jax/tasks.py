@@ -152,6 +152,12 @@ for _n, _rmax, _rmin in [
     # (Goal 3, Button/Push 4 groups of 16).
     _sg(_n, 1000, 12 + 16 * (3 if "Goal" in _n else 4), 2, _rmax, _rmin, None, 0.9, 10.0, "navigation")
 
+# Navigation environments (r2pac_jax/envs/navigation, C MuJoCo or MJX). The Point observation
+# sizes above (60 / 76) were checked against Safety-Gymnasium 0.4.0's environments.
+for _n in ("CarGoal1", "CarGoal2", "CarButton1", "CarButton2", "CarPush1", "CarPush2",
+           "PointGoal1", "PointGoal2", "PointButton1", "PointButton2", "PointPush1", "PointPush2"):
+    TASKS[_n] = dataclasses.replace(TASKS[_n], env_factory="r2pac_jax.envs.navigation:make_env")
+
 # Velocity (Safety-Gymnasium v1 on gymnasium's v4 MuJoCo envs).
 _sg("AntVelocity", 1000, 27, 8, 2976.276611328125, 6.1519012451171875, 2249, 0.95, 1.0, "velocity",
     version="v1", velocity_limit=2.6222)
