@@ -93,6 +93,12 @@ def get_task(name: str) -> TaskSpec:
     return TASKS[key]
 
 
+def set_env_factory(name: str, factory: str) -> None:
+    """Attach an environment factory ("module:function") to a registered task."""
+    spec = get_task(name)
+    TASKS[spec.name] = dataclasses.replace(spec, env_factory=factory)
+
+
 # --------------------------------------------------------------------------------------------
 # The demonstration task (pure JAX, envs/reach_avoid.py). Its constants are part of the task's
 # design, fixed before any training: R_max is the return of the noiseless straight-line
@@ -156,7 +162,7 @@ for _n, _rmax, _rmin in [
 # sizes above (60 / 76) were checked against Safety-Gymnasium 0.4.0's environments.
 for _n in ("CarGoal1", "CarGoal2", "CarButton1", "CarButton2", "CarPush1", "CarPush2",
            "PointGoal1", "PointGoal2", "PointButton1", "PointButton2", "PointPush1", "PointPush2"):
-    TASKS[_n] = dataclasses.replace(TASKS[_n], env_factory="r2pac_jax.envs.navigation:make_env")
+    set_env_factory(_n, "r2pac_jax.envs.navigation:make_env")
 
 # Velocity (Safety-Gymnasium v1 on gymnasium's v4 MuJoCo envs).
 _sg("AntVelocity", 1000, 27, 8, 2976.276611328125, 6.1519012451171875, 2249, 0.95, 1.0, "velocity",
@@ -169,6 +175,10 @@ _sg("HopperVelocity", 1000, 11, 3, 1911.396728515625, 37.05154800415039, None, 0
     version="v1", velocity_limit=0.7402)
 _sg("Walker2dVelocity", 1000, 17, 6, 3418.223876953125, 18.668498992919922, None, 0.9, 1.0, "velocity",
     version="v1", velocity_limit=2.3415)
+# Their environments: r2pac_jax/envs/velocity.py (MJX or C MuJoCo, see envs/physics.py).
+for _n in ("AntVelocity", "HalfCheetahVelocity", "SwimmerVelocity", "HopperVelocity",
+           "Walker2dVelocity"):
+    set_env_factory(_n, "r2pac_jax.envs.velocity:make_env")
 
 # Bullet-Safety-Gym (kappa 5).
 _bullet("AntRun", 200, 33, 8, 955.4818725585938, 0.001767391717990563, 1816, 0.7, 1.0)
@@ -179,9 +189,3 @@ _bullet("AntCircle", 500, 34, 8, 460.7091979980469, 0.0177031010389328, 5728, 0.
 _bullet("BallCircle", 200, 8, 2, 881.46337890625, 0.38312244415283203, 886, 0.85, 1.0)
 _bullet("CarCircle", 300, 8, 2, 534.3060913085938, 3.484419822692871, 1450, 0.9, 1.0)
 _bullet("DroneCircle", 300, 18, 4, 996.38916015625, 207.794189453125, 1923, 0.7, 1.0)
-
-
-def set_env_factory(name: str, factory: str) -> None:
-    """Attach an environment factory ("module:function") to a registered task."""
-    spec = get_task(name)
-    TASKS[spec.name] = dataclasses.replace(spec, env_factory=factory)
