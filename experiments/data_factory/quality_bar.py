@@ -1,0 +1,102 @@
+"""The data factory's quality bar (issue 5): on every task with a generated dataset, R2PAC
+(quick preset) should be safe and ahead of BC-safe, averaged over 3 seeds.
+
+    python experiments/data_factory/quality_bar.py [--tasks CarGoal2,SwimmerVelocity,...]
+        [--out runs/quality_bar] [--seeds 3] [--eval-every 20000] [--report-only]
+
+Each (task, algo) is one `python -m r2pac_jax.train` run in OUT/TASK/ALGO; a finished run
+(results.json present) is skipped, an interrupted one resumes from its checkpoint, so the
+experiment can be stopped and restarted task by task. Data come from the cache
+(`python -m r2pac_jax.data make --task TASK`), generated on first use. The table (paper format,
+r2pac / bc-all / bc-safe per task, with the verdict) goes to OUT/quality_bar.md; the command,
+machine and date belong beside it in experiments/data_factory/QUALITY_BAR.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ALGOS = ("r2pac", "bc-all", "bc-safe")
+
+
+def default_tasks() -> list[str]:
+    from r2pac_jax.data import factory
+    from r2pac_jax.tasks import TASKS
+
+    return [n for n, t in TASKS.items() if t.has_env and factory.has_source(t)]
+
+
+def run_one(task: str, algo: str, out: Path, seeds: int, eval_every: int) -> None:
+    run_dir = out / task / algo
+    if (run_dir / "results.json").exists():
+        return
+    cmd = [sys.executable, "-m", "r2pac_jax.train", "--task", task, "--algo", algo,
+           "--preset", "quick", "--seeds", str(seeds), "--baselines", "none",
+           "--eval-every", str(eval_every), "--out", str(run_dir), "--no-progress"]
+    if (run_dir / "checkpoints").is_dir():
+        cmd.append("--resume")
+    print(" ".join(cmd), flush=True)
+    subprocess.run(cmd, check=True)
+
+
+def verdict(row: dict) -> str:
+    """'pass' when r2pac is safe and its reward is above bc-safe's, else what failed."""
+    if not all(a in row for a in ("r2pac", "bc-safe")):
+        return "incomplete"
+    r, b = row["r2pac"], row["bc-safe"]
+    problems = []
+    if r["normalized_cost"]["mean"] >= 1.0:
+        problems.append("r2pac unsafe")
+    if r["normalized_reward"]["mean"] <= b["normalized_reward"]["mean"]:
+        problems.append("r2pac reward <= bc-safe")
+    return "pass" if not problems else "fail: " + ", ".join(problems)
+
+
+def report(out: Path, tasks: list[str]) -> str:
+    from r2pac_jax.io import atomic_write_text
+    from r2pac_jax.report import results_table
+
+    cells: dict[str, dict] = {}
+    for task in tasks:
+        row = {}
+        for algo in ALGOS:
+            f = out / task / algo / "results.json"
+            if f.exists():
+                row[algo] = json.loads(f.read_text())
+        if row:
+            cells[task] = row
+    if not cells:
+        return "no finished run yet"
+    lines = [results_table(cells, list(ALGOS)), "", "| Task | verdict |", "|---|---|"]
+    lines += [f"| {t} | {verdict(r)} |" for t, r in cells.items()]
+    text = "\n".join(lines) + "\n"
+    atomic_write_text(out / "quality_bar.md", text)
+    return text
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--tasks", default=None, help="comma-separated (default: every task with "
+                                                  "an environment and a data source)")
+    ap.add_argument("--out", default="runs/quality_bar")
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--eval-every", type=int, default=20_000,
+                    help="evaluate at the end of the quick preset's 20k policy steps only")
+    ap.add_argument("--report-only", action="store_true")
+    args = ap.parse_args()
+    tasks = args.tasks.split(",") if args.tasks else default_tasks()
+    out = Path(args.out)
+    if not args.report_only:
+        for task in tasks:
+            for algo in ALGOS:
+                run_one(task, algo, out, args.seeds, args.eval_every)
+            print(report(out, tasks), flush=True)
+    print(report(out, tasks))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
