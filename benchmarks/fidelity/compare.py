@@ -1,14 +1,26 @@
 """Replay the reference's rollouts in our environments and measure the step-by-step errors.
 
     python benchmarks/fidelity/compare.py [--tasks AntVelocity,...] [--steps 100,1000]
-        [--seeds 0,1,2] [--physics mujoco,mjx] [--ref-python PATH]
+        [--seeds 0,1,2] [--physics mujoco,mjx] [--x64] [--ref-python PATH] [--out FILE.jsonl]
 
-For every task and seed: run `reference_rollout.py` in the reference virtualenv (env var
+For every task and seed, `reference_rollout.py` runs in the reference virtualenv (env var
 R2PAC_SG_VENV, default .venv-safety-gymnasium; build it with
-../shared/reference/install-safety-gymnasium.sh), start our env from the same qpos/qvel, apply
-the same actions and report the maximum absolute error of observation, reward, cost and the
-agreement of the terminal flags over the first N steps. Prints one JSON line per (task, backend,
-horizon).
+../shared/reference/install-safety-gymnasium.sh) for max(steps) steps of seeded uniform-random
+actions, stepping on through terminal states (so every horizon is compared in full; the terminal
+flags are compared step by step). Our side then measures, per backend, two things:
+
+* open loop: start from the reference's state after reset, apply the same actions, compare
+  observation, reward, cost, terminal flag, qpos and qvel at every step. Errors here combine
+  model differences with chaotic growth of round-off (contact-rich robots amplify 1e-14 into
+  O(1) within a few hundred steps).
+* one step: put our env in the reference's exact state before step t (qpos, qvel and any other
+  field our task reads, e.g. Ant's torso xpos; MJX also gets the solver warm start), apply
+  action t, compare with the reference after step t. This isolates the model/integrator error
+  of a single control step from the chaos.
+
+Prints one JSON line per (task, backend, mode, horizon): the maximum absolute error of each
+quantity over seeds and steps, how many steps' cost / terminal flags disagree, and (open loop)
+the first step at which the observation error exceeds 1e-3. `--x64` runs MJX in float64.
 """
 from __future__ import annotations
 
@@ -23,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).parent
+QUANTITIES = ("obs", "reward", "cost", "qpos", "qvel")
 
 
 def reference_python() -> Path:
@@ -31,62 +44,149 @@ def reference_python() -> Path:
 
 
 def reference_rollout(gym_id: str, seed: int, steps: int, python: Path) -> dict:
+    """The reference's record (see reference_rollout.py), with the start state prepended to
+    the per-step state arrays: `pre[k][t]` is the state before step t."""
     with tempfile.TemporaryDirectory() as d:
         out = Path(d) / "ref.npz"
         subprocess.run([str(python), str(HERE / "reference_rollout.py"), gym_id, str(seed),
-                        str(steps), str(out)], check=True, capture_output=True, timeout=900)
+                        str(steps), str(out), "--through-terminal"], check=True,
+                       capture_output=True, timeout=900)
         with np.load(out) as z:
-            return {k: z[k] for k in z.files}
+            ref = {k: z[k] for k in z.files}
+    ref["pre"] = {
+        "qpos": np.concatenate([ref["qpos0"][None], ref["qpos"][:-1]]),
+        "qvel": np.concatenate([ref["qvel0"][None], ref["qvel"][:-1]]),
+        "xpos": np.concatenate([ref["body_xpos0"][None], ref["body_xpos"][:-1]]),
+        "qacc_warmstart": np.concatenate([ref["warmstart0"][None], ref["warmstart"][:-1]]),
+    }
+    return ref
 
 
-def replay(task_name: str, ref: dict, physics: str) -> dict:
-    """Our side: the same start state and actions; per-step arrays like the reference's."""
-    import jax
-    import jax.numpy as jnp
+class Replayer:
+    """Our env for one task and backend; compiled functions are reused across seeds."""
 
-    from r2pac_jax.tasks import get_task
+    def __init__(self, task_name: str, physics: str):
+        import jax
 
-    env = get_task(task_name).make_env(physics=physics)
-    T = ref["actions"].shape[0]
-    out = {k: [] for k in ("obs", "reward", "cost", "terminated", "qpos", "qvel")}
-    if physics == "mujoco":
-        st = env.reset_batch(jax.random.split(jax.random.PRNGKey(0), 1))
-        states = env.states_from_qpos_qvel(ref["qpos0"][None], ref["qvel0"][None])
-        st = env.reset_to(states, st.info, st.key)
-        for t in range(T):
-            st = env.step_batch(st, ref["actions"][t][None])
-            for k, v in (("obs", st.obs[0]), ("reward", st.reward[0]), ("cost", st.cost[0]),
-                         ("terminated", st.terminated[0]), ("qpos", st.physics["qpos"][0]),
-                         ("qvel", st.physics["qvel"][0])):
-                out[k].append(np.asarray(v))
-    else:
+        from r2pac_jax.tasks import get_task
+
+        self.physics = physics
+        self.env = get_task(task_name).make_env(physics=physics)
+        self.fields = self.env.task.view_fields
+        if physics == "mjx":
+            env = self.env
+            def body(s, a):
+                s = env.step(s, a)
+                return s, self._record(s)
+
+            self._scan = jax.jit(lambda s, a: jax.lax.scan(body, s, a)[1])
+            self._vstep = jax.jit(jax.vmap(lambda s, a: self._record(env.step(s, a))))
+            self._vforward = jax.jit(jax.vmap(self._mjx_state))
+
+    @staticmethod
+    def _record(s):
+        return dict(obs=s.obs, reward=s.reward, cost=s.cost, terminated=s.terminated,
+                    qpos=s.physics.qpos, qvel=s.physics.qvel)
+
+    def _mjx_state(self, key, pre):
+        """An MJX EnvState at the reference's state `pre` (dict of mjData fields)."""
         from mujoco import mjx
 
-        st = env.reset(jax.random.PRNGKey(0))
-        data = st.physics.replace(qpos=jnp.asarray(ref["qpos0"], jnp.float32),
-                                  qvel=jnp.asarray(ref["qvel0"], jnp.float32))
-        st = st.replace(physics=mjx.forward(env.model, data))
+        st = self.env.reset(key)
+        data = st.physics.replace(qpos=pre["qpos"], qvel=pre["qvel"])
+        data = mjx.forward(self.env.model, data)
+        # fields as the reference's last mj_step left them (e.g. Ant's xpos); the warm start too
+        data = data.replace(**{k: v for k, v in pre.items() if k not in ("qpos", "qvel")})
+        view = {f: getattr(data, f) for f in self.fields}
+        return st.replace(obs=self.env.task.observe(view, st.info).astype(st.obs.dtype),
+                          physics=data)
 
-        def body(s, a):
-            s = env.step(s, a)
-            return s, (s.obs, s.reward, s.cost, s.terminated, s.physics.qpos, s.physics.qvel)
+    def _mujoco_state(self, pre: dict, n: int):
+        """A C-MuJoCo EnvState (batch n) at the reference's states `pre`."""
+        import jax
 
-        _, traj = jax.jit(lambda s, a: jax.lax.scan(body, s, a))(
-            st, jnp.asarray(ref["actions"], jnp.float32))
-        for k, v in zip(out, traj):
-            out[k] = list(np.asarray(v))
-    return {k: np.asarray(v) for k, v in out.items()}
+        env = self.env
+        st = env.reset_batch(jax.random.split(jax.random.PRNGKey(0), n))
+        states = env.states_from_qpos_qvel(pre["qpos"], pre["qvel"])
+        st = env.reset_to(states, st.info, st.key)
+        # view fields as the reference's last mj_step left them (e.g. Ant's xpos)
+        physics = dict(st.physics, **{f: pre[f] for f in self.fields if f in pre})
+        return st.replace(physics=physics)
+
+    def _pre_arrays(self, pre: dict, idx):
+        import jax.numpy as jnp
+
+        keep = set(self.fields) | {"qpos", "qvel"}
+        if self.physics == "mjx":
+            keep.add("qacc_warmstart")
+        dtype = jnp.zeros(()).dtype  # float32, or float64 under --x64
+        return {k: jnp.asarray(v[idx], dtype) for k, v in pre.items() if k in keep}
+
+    def open_loop(self, ref: dict) -> dict:
+        import jax
+        import jax.numpy as jnp
+
+        pre, acts = ref["pre"], ref["actions"]
+        if self.physics == "mjx":
+            st = self._vforward(jax.random.split(jax.random.PRNGKey(0), 1),
+                                self._pre_arrays(pre, slice(0, 1)))
+            st = jax.tree_util.tree_map(lambda x: x[0], st)
+            out = self._scan(st, jnp.asarray(acts, jnp.zeros(()).dtype))
+            return {k: np.asarray(v) for k, v in out.items()}
+        st = self._mujoco_state({k: v[:1] for k, v in pre.items()}, 1)
+        rec = {k: [] for k in ("obs", "reward", "cost", "terminated", "qpos", "qvel")}
+        for t in range(acts.shape[0]):
+            st = self.env.step_batch(st, acts[t][None])
+            for k, v in (("obs", st.obs), ("reward", st.reward), ("cost", st.cost),
+                         ("terminated", st.terminated), ("qpos", st.physics["qpos"]),
+                         ("qvel", st.physics["qvel"])):
+                rec[k].append(np.asarray(v[0]))
+        return {k: np.asarray(v) for k, v in rec.items()}
+
+    def one_step(self, ref: dict) -> dict:
+        import jax
+        import jax.numpy as jnp
+
+        pre, acts = ref["pre"], ref["actions"]
+        T = acts.shape[0]
+        if self.physics == "mjx":
+            st = self._vforward(jax.random.split(jax.random.PRNGKey(0), T),
+                                self._pre_arrays(pre, slice(None)))
+            out = self._vstep(st, jnp.asarray(acts, jnp.zeros(()).dtype))
+            return {k: np.asarray(v) for k, v in out.items()}
+        st = self.env.step_batch(self._mujoco_state(pre, T), acts)
+        return dict(obs=st.obs, reward=st.reward, cost=st.cost, terminated=st.terminated,
+                    qpos=st.physics["qpos"], qvel=st.physics["qvel"])
 
 
 def errors(ref: dict, ours: dict, horizon: int) -> dict:
+    """Per-quantity max |ours - ref| over the first `horizon` steps, and flag disagreements."""
     n = min(horizon, ref["actions"].shape[0])
     res = dict(steps=int(n))
-    for k in ("obs", "reward", "cost", "qpos", "qvel"):
-        res[f"max_err_{k}"] = float(np.max(np.abs(np.asarray(ours[k][:n], np.float64)
-                                                  - np.asarray(ref[k][:n], np.float64))))
-    res["terminated_agree"] = bool(np.array_equal(ours["terminated"][:n].astype(bool),
-                                                  ref["terminated"][:n].astype(bool)))
+    for k in QUANTITIES:
+        d = np.abs(np.asarray(ours[k][:n], np.float64) - np.asarray(ref[k][:n], np.float64))
+        res[f"max_err_{k}"] = float(np.max(d))
+    res["cost_disagree"] = int(np.sum(np.asarray(ours["cost"][:n]) != ref["cost"][:n]))
+    res["terminated_disagree"] = int(np.sum(np.asarray(ours["terminated"][:n]).astype(bool)
+                                            != ref["terminated"][:n].astype(bool)))
+    dobs = np.abs(np.asarray(ours["obs"][:n], np.float64) - ref["obs"][:n]).max(axis=1)
+    over = np.nonzero(dobs > 1e-3)[0]
+    res["first_obs_err_over_1e-3"] = int(over[0]) + 1 if over.size else None
+    ref_term = np.nonzero(ref["terminated"][:n])[0]
+    res["ref_first_terminal"] = int(ref_term[0]) + 1 if ref_term.size else None
     return res
+
+
+def summarise(per: list, **row) -> dict:
+    row["steps"] = [p["steps"] for p in per]
+    for k in per[0]:
+        if k.startswith("max_err"):
+            row[k] = max(p[k] for p in per)
+    for k in ("cost_disagree", "terminated_disagree"):
+        row[k] = sum(p[k] for p in per)
+    for k in ("first_obs_err_over_1e-3", "ref_first_terminal"):
+        row[k] = [p[k] for p in per]
+    return row
 
 
 def main():
@@ -96,8 +196,14 @@ def main():
     ap.add_argument("--steps", default="100,1000")
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--physics", default="mujoco")
+    ap.add_argument("--x64", action="store_true", help="run MJX in float64")
     ap.add_argument("--ref-python", default=None)
+    ap.add_argument("--out", default=None, help="also append the JSON lines to this file")
     args = ap.parse_args()
+    if args.x64:
+        import jax
+
+        jax.config.update("jax_enable_x64", True)
     from r2pac_jax.tasks import get_task
 
     python = Path(args.ref_python) if args.ref_python else reference_python()
@@ -105,20 +211,23 @@ def main():
         sys.exit(f"reference python {python} not found: build the reference virtualenv with "
                  "../shared/reference/install-safety-gymnasium.sh and set R2PAC_SG_VENV")
     horizons = [int(h) for h in args.steps.split(",")]
+    seeds = [int(s) for s in args.seeds.split(",")]
     for name in args.tasks.split(","):
-        refs = [reference_rollout(get_task(name).gym_id, int(s), max(horizons), python)
-                for s in args.seeds.split(",")]
+        refs = [reference_rollout(get_task(name).gym_id, s, max(horizons), python)
+                for s in seeds]
         for physics in args.physics.split(","):
-            ours = [replay(name, r, physics) for r in refs]
-            for h in horizons:
-                per = [errors(r, o, h) for r, o in zip(refs, ours)]
-                row = dict(task=name, physics=physics, horizon=h, seeds=args.seeds,
-                           steps=[p["steps"] for p in per],
-                           terminated_agree=all(p["terminated_agree"] for p in per))
-                for k in per[0]:
-                    if k.startswith("max_err"):
-                        row[k] = max(p[k] for p in per)
-                print(json.dumps(row), flush=True)
+            rep = Replayer(name, physics)
+            label = physics + ("-f64" if physics == "mjx" and args.x64 else "")
+            for mode, fn in (("open_loop", rep.open_loop), ("one_step", rep.one_step)):
+                ours = [fn(r) for r in refs]
+                for h in horizons:
+                    row = summarise([errors(r, o, h) for r, o in zip(refs, ours)], task=name,
+                                    physics=label, mode=mode, horizon=h, seeds=args.seeds)
+                    line = json.dumps(row)
+                    print(line, flush=True)
+                    if args.out:
+                        with open(args.out, "a") as f:
+                            f.write(line + "\n")
 
 
 if __name__ == "__main__":

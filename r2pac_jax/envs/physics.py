@@ -166,8 +166,12 @@ class MujocoEnv:
 
     The state's `physics` holds MuJoCo's full physics state vector per episode
     (`physics["state"]`, [n, nstate]) and the view fields, so the env keeps no hidden
-    simulator state: stepping the same `EnvState` twice gives the same result. Tasks whose view
-    needs fields outside `STATE_FIELDS` + `sensordata` are stepped one `MjData` at a time.
+    simulator state: stepping the same `EnvState` twice gives the same result (MuJoCo's solver
+    warm start is not carried: each control step starts cold; the constraint solver converges
+    to its tolerance either way). Tasks whose view needs fields outside `STATE_FIELDS` +
+    `sensordata` are stepped one `MjData` at a time. After a step, views are read as `mj_step`
+    leaves mjData (as in gymnasium): state fields are the new state, derived fields (sensordata,
+    xpos, ...) come from the step's last forward pass; after a reset, from `mj_forward`.
     """
 
     is_jax = False
@@ -276,14 +280,20 @@ class MujocoEnv:
             states = states[:, -1]
             after = self._view(states, sens[:, -1] if sens.size else sens[:, 0])
         else:
+            # views read as mj_step leaves mjData (derived fields such as xpos come from its
+            # last forward pass, as gymnasium's envs read them), like sensordata above
             mujoco, m, d = self._mujoco, self.mj_model, self._scratch
             states = np.empty_like(state.physics["state"])
+            views = {f: [] for f in self.task.view_fields}
             for i in range(n):
                 mujoco.mj_setState(m, d, state.physics["state"][i], self._spec)
+                d.qacc_warmstart[:] = 0.0  # cold start, as rollout does: no leak across episodes
                 d.ctrl[:] = control[i, 0]
                 mujoco.mj_step(m, d, nstep=fs)
                 mujoco.mj_getState(m, d, states[i], self._spec)
-            after = self._forward_states(states)
+                for f in views:
+                    views[f].append(np.array(getattr(d, f)))
+            after = {f: np.stack(v) for f, v in views.items()}
         before = {f: state.physics[f] for f in self.task.view_fields}
         reward, cost, terminated, extras, obs = self._outcome(before, after, actions, state.info)
         return self._make_state(states, after, extras, obs, reward, cost, terminated,
