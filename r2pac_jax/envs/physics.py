@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from r2pac_jax.envs.base import EnvState, JaxEnv, check_action
+from r2pac_jax.envs import mjx_lean
 
 
 class BackendUnavailableError(RuntimeError):
@@ -128,7 +129,8 @@ class MjxEnv(JaxEnv):
         key, k = jax.random.split(key)
         qpos, qvel, extras = self.task.init(k)
         data = mjx.make_data(self.model).replace(qpos=qpos, qvel=qvel)
-        data = mjx.forward(self.model, data)
+        # only what the view needs (no pass, kinematics or forward): less to compile
+        data = mjx_lean.reset_pass(self.model, data, self.task.view_fields)
         zero = jnp.zeros((), jnp.float32)
         return EnvState(obs=self.task.observe(self._view(data), extras).astype(jnp.float32),
                         reward=zero, cost=zero, terminated=jnp.array(False),
@@ -140,8 +142,8 @@ class MjxEnv(JaxEnv):
         action = jnp.clip(action, -1.0, 1.0)
         before = self._view(state.physics)
         data = state.physics.replace(ctrl=self.task.controls(action, state.info))
-        data = jax.lax.fori_loop(0, self.task.frame_skip,
-                                 lambda _, d: mjx.step(self.model, d), data)
+        data = jax.lax.fori_loop(0, self.task.frame_skip,  # mjx.step, RK4 rolled (mjx_lean)
+                                 lambda _, d: mjx_lean.step(self.model, d), data)
         after = self._view(data)
         reward, cost, terminated, extras = self.task.transition(before, after, action,
                                                                 state.info)
