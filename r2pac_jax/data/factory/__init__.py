@@ -27,9 +27,10 @@ class FactoryError(RuntimeError):
 
 
 def _sources() -> dict[str, dict]:
-    from r2pac_jax.data.factory import reach_avoid
+    """Task name -> its data source (navigation.py and velocity.py say which is default)."""
+    from r2pac_jax.data.factory import navigation, reach_avoid
 
-    return {"ReachAvoid": reach_avoid.SOURCE}
+    return {"ReachAvoid": reach_avoid.SOURCE, **navigation.SOURCES}
 
 
 def has_source(task: TaskSpec) -> bool:
