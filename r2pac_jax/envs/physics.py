@@ -284,18 +284,30 @@ class MujocoEnv:
         else:
             # views read as mj_step leaves mjData (derived fields such as xpos come from its
             # last forward pass, as gymnasium's envs read them), like sensordata above
-            mujoco, m, d = self._mujoco, self.mj_model, self._scratch
+            mujoco, m = self._mujoco, self.mj_model
             states = np.empty_like(state.physics["state"])
-            views = {f: [] for f in self.task.view_fields}
-            for i in range(n):
-                mujoco.mj_setState(m, d, state.physics["state"][i], self._spec)
-                d.qacc_warmstart[:] = 0.0  # cold start, as rollout does: no leak across episodes
-                d.ctrl[:] = control[i, 0]
-                mujoco.mj_step(m, d, nstep=fs)
-                mujoco.mj_getState(m, d, states[i], self._spec)
-                for f in views:
-                    views[f].append(np.array(getattr(d, f)))
-            after = {f: np.stack(v) for f, v in views.items()}
+            after = {f: np.empty((n,) + getattr(self._scratch, f).shape)
+                     for f in self.task.view_fields}
+
+            def run(d, lanes):  # one MjData per thread; mj_step releases the GIL
+                for i in lanes:
+                    mujoco.mj_setState(m, d, state.physics["state"][i], self._spec)
+                    d.qacc_warmstart[:] = 0.0  # cold start, as rollout does: no leak
+                    d.ctrl[:] = control[i, 0]
+                    mujoco.mj_step(m, d, nstep=fs)
+                    mujoco.mj_getState(m, d, states[i], self._spec)
+                    for f in after:
+                        after[f][i] = getattr(d, f)
+
+            k = max(1, min(n, len(self._datas)))
+            if k == 1:
+                run(self._datas[0], range(n))
+            else:
+                if getattr(self, "_pool", None) is None:
+                    from concurrent.futures import ThreadPoolExecutor
+
+                    self._pool = ThreadPoolExecutor(len(self._datas))
+                list(self._pool.map(run, self._datas[:k], np.array_split(np.arange(n), k)))
         before = {f: state.physics[f] for f in self.task.view_fields}
         reward, cost, terminated, extras, obs = self._outcome(before, after, actions, state.info)
         return self._make_state(states, after, extras, obs, reward, cost, terminated,
