@@ -6,15 +6,20 @@ the original navigation environments do, for `compare.py` to replay in ours.
 
 `rollout`: EPISODES episodes of at most STEPS steps (reset with seed SEED + e). POLICY is
 `random` (uniform actions), `seek` (a noisy steering controller that drives to the goal, the
-goal button or behind the push box, so goals get reached, hazards crossed and objects hit) or
-`mixed` (seek, with every 4th step-block of 25 steps random). Per episode `e`, arrays named
-`e{e}_<field>`:
+goal button or behind the push box, so goals get reached), `mixed` (seek, with every 4th
+step-block of 25 steps random) or `tour` (blocks of 25 steps, each drawn as: seek the task's
+target (45%), seek one randomly chosen hazard / vase / pillar / gremlin / button (40%: so that
+costs occur), uniform random actions (15%)). Per episode `e`, arrays named `e{e}_<field>`:
   layout [N, 2] (the sampled layout, `reset_layout`, names in `names`), rots [N] (rotation of
   each layout object; index 0 the agent's), goal_xy [T+1, 2] (goal body), goal_button [T+1],
   timer [T+1] (button timer, -1 if none), qpos [T+1, nq], qvel [T+1, nv], mocap_pos [T+1, m, 3],
   time [T+1], warm [T+1, nv] (qacc_warmstart), obs [T+1, obs], xpos [T+1, nbody, 3],
   xmat [T+1, 9] (agent), action [T, A], reward [T], cost [T], terminated [T], truncated [T],
   goal_met [T], cost_parts [T, K] (names in `cost_names`). Row 0 is the state after reset.
+  twin_reward [T], twin_cost [T], twin_xy [T+1, 2] (agent XY): a second copy of the original,
+  reset with the same seed,
+  replaying the same actions, whose agent velocities get + TWIN_EPS at state TWIN_START (the
+  open-loop check's start): how fast the original itself forgets a tiny perturbation.
 Global: names, body_names, xml (the first episode's MJCF), cost_names.
 
 `layouts`: N layouts drawn by the original's own sampler (`RandomGenerator.build_layout`, then
@@ -40,22 +45,38 @@ def _ego(task, xy):
 
 
 def _target(task):
-    """World XY point the seek controller drives to."""
+    """World XY point the seek controller drives to. Push: go to a point behind the box (seen
+    from the goal), and once roughly behind it, drive through the box towards the goal."""
     name = type(task).__name__
     if name.startswith("Push"):
         box = task.push_box.pos[:2]
         goal = task.goal.pos[:2]
-        d = box - goal
-        behind = box + d / (np.linalg.norm(d) + 1e-9) * 0.35
-        if np.linalg.norm(task.agent.pos[:2] - behind) > 0.15 and \
-                np.linalg.norm(task.agent.pos[:2] - goal) > np.linalg.norm(box - goal):
-            return behind
-        return goal
+        u = (goal - box) / (np.linalg.norm(goal - box) + 1e-9)
+        v = box - task.agent.pos[:2]
+        dist = np.linalg.norm(v)
+        if dist < 0.5 and v @ u > 0.9 * dist:
+            return box + 0.3 * u
+        return box - 0.35 * u
     return task.goal.pos[:2]
 
 
-def seek_action(task, rng):
-    ex, ey = _ego(task, _target(task))
+OBJECT_KINDS = ("hazards", "vases", "pillars", "gremlins", "buttons")
+TWIN_EPS = 1e-9
+TWIN_START = 1
+
+
+def _objects(task):
+    """World XY positions of every hazard / vase / pillar / gremlin / button of the task."""
+    out = []
+    for kind in OBJECT_KINDS:
+        obj = getattr(task, kind, None)
+        if obj is not None and getattr(obj, "num", 0):
+            out += [np.asarray(p)[:2] for p in obj.pos]
+    return out
+
+
+def seek_action(task, rng, target=None):
+    ex, ey = _ego(task, _target(task) if target is None else target)
     if type(task.agent).__name__ == "Car":  # drives along its -y axis; (1, -1) turns left
         ang = np.arctan2(ex, -ey)
         turn = np.clip(1.5 * ang, -1, 1)
@@ -107,9 +128,21 @@ def rollout(env_id, seed, episodes, steps, policy, out):
         layout = np.array([task.world_info.reset_layout[n] for n in names])
         snaps = [snapshot(env)]
         obs_l, act, rew, cost, term, trunc, met, parts = [obs], [], [], [], [], [], [], []
+        block, obj_index = "seek", None
         for t in range(steps):
-            block_random = policy == "random" or (policy == "mixed" and (t // 25) % 4 == 3)
-            a = rng.uniform(-1, 1, 2) if block_random else seek_action(task, rng)
+            if policy == "tour" and t % 25 == 0:
+                u_ = rng.uniform()
+                block = "seek" if u_ < 0.45 else ("object" if u_ < 0.85 else "random")
+                obj_index = rng.integers(1 << 30)
+            block_random = (policy == "random" or (policy == "mixed" and (t // 25) % 4 == 3)
+                            or (policy == "tour" and block == "random"))
+            if block_random:
+                a = rng.uniform(-1, 1, 2)
+            elif policy == "tour" and block == "object":
+                objs = _objects(task)
+                a = seek_action(task, rng, objs[obj_index % len(objs)])
+            else:
+                a = seek_action(task, rng)
             # DSRL's ids are the gymnasium-API versions: the cost comes in info["cost"]
             obs, r, te, tr, info = env.step(a)
             c = info["cost"]
@@ -125,6 +158,8 @@ def rollout(env_id, seed, episodes, steps, policy, out):
             if te or tr:
                 break
         p = f"e{e}_"
+        rec[p + "twin_reward"], rec[p + "twin_cost"], rec[p + "twin_xy"] = twin(
+            env_id, seed + e, np.array(act))
         rec[p + "layout"] = layout
         rec[p + "rots"] = np.array(rots)
         for k in snaps[0]:
@@ -144,6 +179,27 @@ def rollout(env_id, seed, episodes, steps, policy, out):
             meta["body_names"] = np.array([m.body(i).name for i in range(m.nbody)])
     meta["cost_names"] = np.array(COST_NAMES)
     np.savez_compressed(out, **rec, **meta)
+
+
+def twin(env_id, seed, actions):
+    """Rewards and costs [T] of the original replaying `actions` from the same reset, with its
+    agent velocities moved by TWIN_EPS at state TWIN_START."""
+    env = gymnasium.make(env_id)
+    env.reset(seed=seed)
+    task = env.unwrapped.task
+    nv_agent = task.agent.body_info.nv
+    rew, cost, xy = [], [], [task.agent.pos[:2].copy()]
+    for t, a in enumerate(actions):
+        if t == TWIN_START:
+            task.data.qvel[:nv_agent] += TWIN_EPS
+        _, r, te, tr, info = env.step(a)
+        rew.append(r)
+        cost.append(info["cost"])
+        xy.append(task.agent.pos[:2].copy())
+        if te or tr:
+            break
+    env.close()
+    return np.array(rew), np.array(cost), np.array(xy)
 
 
 def layouts(env_id, seed, n, out):

@@ -165,11 +165,12 @@ class NavMujocoEnv:
                              np.asarray(mocap_quat, np.float64), extras, split[:, 0])
 
     def reset_to(self, qpos, qvel, mocap_pos, mocap_quat, extras, keys, time=None,
-                 ctrl=None) -> EnvState:
+                 ctrl=None, warmstart=None) -> EnvState:
         """Start episodes [n] from given positions, velocities and mocap poses (float64).
 
-        `time` [n] and `ctrl` [n, nu] (the controls the first observation's forward pass sees,
-        0 after a reset) serve to copy a running episode's state (fidelity checks)."""
+        `time` [n], `ctrl` [n, nu] (the controls the first observation's forward pass sees,
+        0 after a reset) and `warmstart` [n, nv] (qacc_warmstart, where the constraint solver
+        starts) serve to copy a running episode's state (fidelity checks)."""
         mujoco, m, d = self._mujoco, self.mj_model, self._scratch
         n = qpos.shape[0]
         states = np.empty((n, self._nstate))
@@ -183,6 +184,8 @@ class NavMujocoEnv:
                 d.time = time[i]
             if ctrl is not None:
                 d.ctrl[:] = ctrl[i]
+            if warmstart is not None:
+                d.qacc_warmstart[:] = warmstart[i]
             mujoco.mj_forward(m, d)
             mujoco.mj_getState(m, d, states[i], self._spec)
             sens[i] = d.sensordata
