@@ -29,6 +29,18 @@ def compare_table(rows: list) -> str:
     return "\n".join(out)
 
 
+def episodes_table(rows: list) -> str:
+    out = ["| task | episodes | return: original / ours (+- s.e.) | cost | length | "
+           "normalised reward diff | normalised cost diff |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        cells = [f"{r[k]['ref_mean']:.2f} +- {r[k]['ref_se']:.2f} / "
+                 f"{r[k]['ours_mean']:.2f} +- {r[k]['ours_se']:.2f} "
+                 f"({r[k]['diff_over_se']:+.1f} s.e.)" for k in ("returns", "costs", "lengths")]
+        out.append(f"| {r['task']} | {r['episodes']} | " + " | ".join(cells) +
+                   f" | {r['normalized_reward_diff']:+.4f} | {r['normalized_cost_diff']:+.4f} |")
+    return "\n".join(out)
+
+
 def diagnose_tables(rows: list) -> str:
     exps = sorted({r["experiment"] for r in rows if r["kind"] == "raw_one_step"},
                   key=["as_is", "unhalved_margins", "euler_both"].index)
@@ -57,8 +69,12 @@ def main():
     ap.add_argument("--diagnose", default=None)
     args = ap.parse_args()
     rows = [json.loads(line) for f in args.files for line in open(f) if line.strip()]
-    if rows:
-        print(compare_table(rows))
+    steps_rows = [r for r in rows if r["mode"] != "episodes"]
+    if steps_rows:
+        print(compare_table(steps_rows))
+    if len(steps_rows) < len(rows):
+        print()
+        print(episodes_table([r for r in rows if r["mode"] == "episodes"]))
     if args.diagnose:
         print()
         print(diagnose_tables([json.loads(line) for line in open(args.diagnose) if line.strip()]))
