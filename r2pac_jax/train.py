@@ -25,8 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from r2pac_jax.agents.r2pac import Agent, AgentState
-from r2pac_jax.config import (ALGOS, Config, ConfigError, HParams, check_hparams, make_config,
-                              resolve_preset)
+from r2pac_jax.config import (ALGOS, PRESETS, Config, ConfigError, HParams, check_hparams,
+                              make_config, resolve_preset)
 from r2pac_jax.data.chunks import ChunkedData, build_chunks, sample
 from r2pac_jax.data.dsrl import Dataset
 from r2pac_jax.io import atomic_write_json, atomic_write_text
@@ -425,10 +425,32 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def fit_blocks_to_steps(overrides: dict, preset: str) -> None:
+    """A `--steps` shorter than (or not a multiple of) the preset's block would be refused by
+    the config check; shrink the block (threshold refresh, evaluation and checkpoint periods) to
+    fit, unless the user set those explicitly. Refreshing the threshold more often is harmless."""
+    import math
+
+    steps = overrides.get("steps")
+    if steps is None or steps < 1:
+        return
+    preset_values = PRESETS[resolve_preset(preset)[0]]
+    block = overrides.get("threshold_every") or preset_values["threshold_every"]
+    if steps % block == 0 or "threshold_every" in overrides:
+        return
+    block = math.gcd(steps, block)
+    overrides["threshold_every"] = block
+    for k in ("eval_every", "checkpoint_every"):
+        if overrides.get(k) is None:
+            period = min(preset_values[k], steps)
+            overrides[k] = max(block, period - period % block)
+
+
 def run_algo(task: TaskSpec, algo: str, args, ds: Dataset, out: Path, log) -> dict:
     overrides = dict(steps=args.steps, chunk_len=args.chunk_len, seeds=args.seeds,
                      eval_episodes=args.eval_episodes, eval_every=args.eval_every)
     overrides.update(_parse_set(args.set))
+    fit_blocks_to_steps(overrides, args.preset)
     if not task.has_env and overrides.get("eval_episodes") is None:
         log(f"note: {task.name} has no environment in this install; training without evaluation")
         overrides["eval_episodes"] = 0

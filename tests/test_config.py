@@ -70,3 +70,18 @@ def test_auto_preset_says_what_it_chose():
 
     assert preset == ("quick" if jax.default_backend() == "cpu" else "paper")
     assert preset in why and "auto" in why
+
+
+def test_cli_steps_shorter_than_the_block_fit_the_block():
+    from r2pac_jax.train import fit_blocks_to_steps
+
+    over = dict(steps=200)
+    fit_blocks_to_steps(over, "quick")
+    cfg = make_config("ReachAvoid", "r2pac", "quick", over)  # would raise without the fit
+    assert (cfg.steps, cfg.threshold_every, cfg.eval_every, cfg.checkpoint_every) == (
+        200, 100, 200, 200)
+    explicit = dict(steps=200, threshold_every=500)
+    fit_blocks_to_steps(explicit, "quick")
+    assert explicit == dict(steps=200, threshold_every=500)  # the user's own value is kept
+    with pytest.raises(ConfigError, match="must be a multiple of threshold_every"):
+        make_config("ReachAvoid", "r2pac", "quick", explicit)
