@@ -28,9 +28,9 @@ class FactoryError(RuntimeError):
 
 def _sources() -> dict[str, dict]:
     """Task name -> its data source (navigation.py and velocity.py say which is default)."""
-    from r2pac_jax.data.factory import navigation, reach_avoid
+    from r2pac_jax.data.factory import navigation, reach_avoid, velocity
 
-    return {"ReachAvoid": reach_avoid.SOURCE, **navigation.SOURCES}
+    return {"ReachAvoid": reach_avoid.SOURCE, **navigation.SOURCES, **velocity.SOURCES}
 
 
 def has_source(task: TaskSpec) -> bool:

@@ -35,17 +35,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from r2pac_jax.data.factory.thinning import select_episodes
+
 NAV_TASKS = tuple(f"{a}{f}{lvl}" for a in ("Car", "Point") for f in ("Goal", "Button", "Push")
                   for lvl in (1, 2))
 
-# Default sizes, chosen from the measured per-trajectory cost of each task so that generation
-# (OVERSAMPLE x trajectories, then density thinning) stays under 10 minutes on the 2-core CPU;
-# see experiments/data_factory/GENERATION.md.
+# Default sizes: OVERSAMPLE x this many episodes are simulated, then density-thinned. Chosen
+# from each task's measured cost per 1000-step episode at a batch of 200 (0.2 s PointGoal1 to
+# 2.2 s CarGoal2 on the shared 2-core CPU, experiments/data_factory/step_cost.py) so that one
+# task takes about 10 minutes or less; GENERATION.md has the measurements and full runs.
 DEFAULT_TRAJECTORIES = {
-    "CarGoal1": 300, "CarGoal2": 200, "CarButton1": 300, "CarButton2": 200,
-    "CarPush1": 200, "CarPush2": 200,
-    "PointGoal1": 400, "PointGoal2": 160, "PointButton1": 300, "PointButton2": 300,
-    "PointPush1": 250, "PointPush2": 200,
+    "CarGoal1": 300, "CarGoal2": 120, "CarButton1": 300, "CarButton2": 200, "CarPush1": 200,
+    "CarPush2": 200, "PointGoal1": 500, "PointGoal2": 150, "PointButton1": 500,
+    "PointButton2": 300, "PointPush1": 200, "PointPush2": 200,
 }
 OVERSAMPLE = 2
 BATCH = 200  # episodes stepped together (mujoco.rollout's threads share them)
@@ -439,12 +441,15 @@ def make_generate(task_name: str):
         env = get_task(task_name).make_env(physics="mujoco")
         scene = NavScene(env)
         control = make_controller(scene)
-        keys = _episode_keys(seed, n_trajectories)
+        nb = -(-n_trajectories // BATCH)
+        size = -(-n_trajectories // nb)  # equal batches: the jitted functions compile once
+        keys = _episode_keys(seed, nb * size)
         parts = []
-        for i in range(0, n_trajectories, BATCH):
-            parts.append(rollout(env, scene, control, keys[i:i + BATCH], progress,
+        for i in range(0, n_trajectories, size):
+            parts.append(rollout(env, scene, control, keys[i:i + size], progress,
                                  1.0 / OVERSAMPLE))
-        return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        return select_episodes(out, np.arange(n_trajectories))  # drop the batch's extras
 
     return generate
 
