@@ -151,7 +151,7 @@ def test_cli_end_to_end_and_load_policy(data_dir, tmp_path, capsys):
     assert ev["returns"].shape == (2, 2) and len(ev["normalized_reward"]) == 2
 
 
-def test_cli_errors(data_dir, capsys, tmp_path):
+def test_cli_errors(data_dir, capsys, tmp_path, monkeypatch):
     assert main(["--task", "Nope"]) == 2
     assert "unknown task 'Nope'" in capsys.readouterr().err
     assert main(["--task", "ReachAvoid", "--set", "quantile_alpha=2", "--out",
@@ -164,9 +164,15 @@ def test_cli_errors(data_dir, capsys, tmp_path):
     assert "longer than an episode" in capsys.readouterr().err
     assert main(["--task", "ReachAvoid", "--dataset", str(tmp_path / "missing.hdf5")]) == 2
     assert "no such file" in capsys.readouterr().err
+    # no dataset anywhere and a cache directory that cannot be written: a clear error, before
+    # any generation or training starts
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("")
+    monkeypatch.setenv("R2PAC_DATA_DIR", str(blocker / "cache"))
+    monkeypatch.setenv("DSRL_DATASET_DIR", str(tmp_path / "empty"))
     assert main(["--task", "CarGoal2", "--baselines", "none", "--out", str(tmp_path / "z")]) == 2
     err = capsys.readouterr().err
-    assert "no dataset for task CarGoal2" in err and "--dataset" in err
+    assert "is not writable" in err and "R2PAC_DATA_DIR" in err
 
 
 def test_tensorboard_and_jsonl_logs(tmp_path):

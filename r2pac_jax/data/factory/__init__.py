@@ -17,13 +17,14 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from r2pac_jax.data.dsrl import Dataset, validate, write_dsrl
+from r2pac_jax.data.dsrl import Dataset, DatasetError, validate, write_dsrl
 from r2pac_jax.io import atomic_write_json
 from r2pac_jax.tasks import TaskSpec
 
 
-class FactoryError(RuntimeError):
-    pass
+class FactoryError(DatasetError):
+    """A dataset cannot be generated (no source, bad size, unwritable cache); the message says
+    the fix. A DatasetError, so the train CLI reports it like any other data problem."""
 
 
 def _sources() -> dict[str, dict]:
