@@ -11,14 +11,14 @@ times, and the fidelity cost of the MJX model simplifications.
 
 Every measurement prints one JSON line (and appends it to `--out FILE` when given).
 
-stepping  B parallel episodes stepped S control steps (after a warm-up that compiles). Episodes
-          are not reset when they end (their physics keeps stepping at the same cost), so the
-          figure is the simulator's throughput. C MuJoCo (`physics="mujoco"`): the env's
-          `step_batch` in a Python loop; MJX and pure JAX: one jitted `lax.scan` over steps of the
-          vmapped step. Policy "none": uniform random actions (drawn before the loop for C MuJoCo,
-          inside the program for JAX); "r2pac": the quick-preset R2PAC policy (CFG flow 3x128,
-          16 candidates x 32 Euler steps, critic selection; random initial parameters), jitted,
-          called every step on the batch.
+stepping  B parallel episodes stepped S control steps (after a warm-up that compiles); an
+          episode that ends is reset (as the original's loop does), resets inside the timing.
+          C MuJoCo (`physics="mujoco"`): the env's `step_batch` in a Python loop; MJX and pure
+          JAX: one jitted `lax.scan` over steps of the vmapped step. Policy "none": uniform
+          random actions (drawn before the loop for C MuJoCo, inside the program for JAX);
+          "r2pac": the quick-preset R2PAC policy (CFG flow 3x128, 16 candidates x 32 Euler
+          steps, critic selection; random initial parameters), jitted, called every step on
+          the batch.
 protocol  DSRL's evaluation: 20 episodes in parallel, each to its end (at most 1000 steps), with
           the library's own `LaneEvaluator` (what training uses); env-steps = sum of lengths,
           resets included.
@@ -114,10 +114,31 @@ def _physics_for(task, backend):
     return "jax" if task.family == "demo" else backend
 
 
+def _merge_lanes(state, fresh, idx):
+    """`state` (numpy leaves [B, ...]) with lanes `idx` taken from `fresh`'s first len(idx)."""
+    def put(a, b):
+        a = np.array(a)
+        a[idx] = np.asarray(b)[:len(idx)]
+        return a
+
+    return jax.tree_util.tree_map(put, state, fresh)
+
+
+def _bucket(n: int) -> int:
+    return 1 << int(np.ceil(np.log2(max(n, 1))))
+
+
 def step_c_mujoco(task, batch, policy, steps, warmup=3):
+    """C MuJoCo: `step_batch` in a Python loop; ended episodes are reset (only those lanes, in
+    power-of-two buckets so that the jitted reset functions compile once per bucket)."""
     env = task.make_env(physics="mujoco")
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     state = env.reset_batch(keys)
+    if steps + warmup >= task.episode_len or task.family != "navigation":
+        # compile the reset buckets up front (up to 64 lanes ending in one step; more would
+        # compile inside the timing: not seen with these batches)
+        for b in range(int(np.log2(min(_bucket(batch), 64))) + 1):
+            env.reset_batch(jax.random.split(jax.random.PRNGKey(1), 1 << b))
     rng = np.random.default_rng(0)
     if policy == "none":
         acts = rng.uniform(-1, 1, (steps + warmup, batch, task.act_dim)).astype(np.float32)
@@ -128,41 +149,70 @@ def step_c_mujoco(task, batch, policy, steps, warmup=3):
         act = jax.jit(act)
         pkeys = jax.random.split(jax.random.PRNGKey(1), steps + warmup)
         get = lambda t, s: np.asarray(act(pp, jnp.asarray(s.obs), pkeys[t]))  # noqa: E731
-    for t in range(warmup):  # compiles the jitted task functions (and policy) at this batch
+    resets = 0
+
+    def advance(t, state):
+        nonlocal resets
         state = env.step_batch(state, get(t, state))
+        done = np.asarray(state.terminated) | np.asarray(state.truncated)
+        if done.any():
+            idx = np.flatnonzero(done)
+            resets += len(idx)
+            k = jax.random.split(jax.random.PRNGKey(1000 + t), _bucket(len(idx)))
+            state = _merge_lanes(state, env.reset_batch(k), idx)
+        return state
+
+    for t in range(warmup):  # compiles the jitted task functions (and policy) at this batch
+        state = advance(t, state)
+    resets = 0
     t0 = time.perf_counter()
     for t in range(warmup, warmup + steps):
-        state = env.step_batch(state, get(t, state))
+        state = advance(t, state)
     np.asarray(state.obs)
     wall = time.perf_counter() - t0
-    return dict(wall_s=wall, env_steps=batch * steps, policy_desc=desc)
+    return dict(wall_s=wall, env_steps=batch * steps, policy_desc=desc, resets=resets)
 
 
 def step_jax(task, backend, batch, policy, steps, env=None):
+    """JAX env (MJX, pure JAX): one jitted scan of the vmapped step; when an episode ends, the
+    batch's reset is computed (lax.cond on any) and merged into the ended lanes."""
     env = env or task.make_env(physics=_physics_for(task, backend))
     act, pp, desc = get_policy(task, policy)
+    v_reset = jax.vmap(env.reset)
 
     def run(state, key):
         def body(s, k):
-            return jax.vmap(env.step)(s, act(pp, s.obs, k)), None
+            k_act, k_reset = jax.random.split(k)
+            s = jax.vmap(env.step)(s, act(pp, s.obs, k_act))
+            done = s.terminated | s.truncated
 
-        s, _ = jax.lax.scan(body, state, jax.random.split(key, steps))
-        return s
+            def reset_ended(s):
+                fresh = v_reset(jax.random.split(k_reset, batch))
+                pick = lambda f, o: jnp.where(  # noqa: E731
+                    done.reshape(done.shape + (1,) * (f.ndim - 1)), f, o)
+                return jax.tree_util.tree_map(pick, fresh, s)
+
+            s = jax.lax.cond(done.any(), reset_ended, lambda s: s, s)
+            return s, done.sum()
+
+        s, n_done = jax.lax.scan(body, state, jax.random.split(key, steps))
+        return s, n_done.sum()
 
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     t0 = time.perf_counter()
-    reset = jax.jit(jax.vmap(env.reset)).lower(keys).compile()
+    reset = jax.jit(v_reset).lower(keys).compile()
     state = reset(keys)
     prog = jax.jit(run).lower(state, jax.random.PRNGKey(1)).compile()
     compile_s = time.perf_counter() - t0
-    jax.block_until_ready(prog(state, jax.random.PRNGKey(2)).obs)  # warm-up
+    jax.block_until_ready(prog(state, jax.random.PRNGKey(2))[0].obs)  # warm-up
     walls = []
     for r in range(2):
         t0 = time.perf_counter()
-        jax.block_until_ready(prog(state, jax.random.PRNGKey(3 + r)).obs)
+        s, n_done = prog(state, jax.random.PRNGKey(3 + r))
+        jax.block_until_ready(s.obs)
         walls.append(time.perf_counter() - t0)
     return dict(wall_s=min(walls), env_steps=batch * steps, policy_desc=desc,
-                compile_s=compile_s)
+                compile_s=compile_s, resets=int(n_done))
 
 
 def cmd_stepping(args):
@@ -181,7 +231,7 @@ def cmd_stepping(args):
                     else:
                         r = step_jax(task, backend, batch, policy, steps)
                     emit(dict(kind="stepping", task=task.name, backend=backend, batch=batch,
-                              policy=policy, steps=steps,
+                              policy=policy, steps=steps, autoreset=True,
                               steps_per_s=r["env_steps"] / r["wall_s"], **r), args.out)
 
 
@@ -219,10 +269,12 @@ def cmd_protocol(args):
                 t0 = time.perf_counter()
                 if env.is_jax:
                     ev(lane, keys)  # compile + one run
-                else:  # compile the jitted task functions and the policy at this batch
-                    s = env.reset_batch(jax.random.split(jax.random.PRNGKey(5), args.episodes))
-                    env.step_batch(s, np.zeros((args.episodes, task.act_dim), np.float32))
-                    ev._policy_lanes(lane, jnp.asarray(s.obs)[None], keys)
+                else:  # one short call compiles everything the loop calls (same shapes)
+                    env.episode_len = 2
+                    try:
+                        ev(lane, keys)
+                    finally:
+                        env.episode_len = task.episode_len
                 warm_s = time.perf_counter() - t0
                 t0 = time.perf_counter()
                 out = ev(lane, jax.random.PRNGKey(1)[None])
@@ -398,51 +450,78 @@ def cmd_compile(args):
 
 
 def cmd_table(args):
-    recs = [json.loads(line) for f in args.files for line in open(f) if line.strip()]
+    """Markdown tables from JSON lines; a later record replaces an earlier one with the same
+    key (re-runs)."""
+    last = {}
+    for f in args.files:
+        for line in open(f):
+            if line.strip():
+                r = json.loads(line)
+                key = (r["kind"], r.get("task"), r.get("backend"), r.get("batch"),
+                       r.get("policy"), r.get("mode"), r.get("variant"))
+                last[key] = r
+    recs = list(last.values())
     ref = {}
     for r in recs:
         if r["kind"] == "reference":
-            best = ref.setdefault(r["task"], {})
-            best[r["mode"]] = r
+            ref.setdefault(r["task"], {})[r["mode"]] = r
     pol1 = {r["task"]: r["s_per_call"] for r in recs if r["kind"] == "policy"}
 
     def orig(task, policy):
-        seq = ref.get(task, {}).get("seq")
-        if not seq:
+        """The original's best rate (sequential or async workers); with the policy, derived."""
+        if task not in ref:
             return None, ""
         best = max(ref[task].values(), key=lambda r: r["steps_per_s"])
         rate = best["steps_per_s"]
-        how = "seq" if best is seq else f"async x{best['batch']}"
+        how = "seq" if best["mode"] == "seq" else f"async x{best['batch']}"
         if policy == "r2pac":
             if task not in pol1:
                 return None, ""
-            rate = 1.0 / (1.0 / rate + pol1[task] / (1 if how == "seq" else best["batch"]))
-            how += ", derived"
+            rate = 1.0 / (1.0 / rate + pol1[task] / best["batch"])
+            how += " + policy"
         return rate, how
 
-    print("| task | backend | batch | measure | policy | env-steps/s | original env-steps/s "
-          "(how) | ratio |")
-    print("|---|---|---|---|---|---|---|---|")
-    for r in recs:
-        if r["kind"] not in ("stepping", "protocol"):
-            continue
+    order = {t: i for i, t in enumerate(["ReachAvoid"] + VELOCITY + NAVIGATION)}
+    rows = sorted((r for r in recs if r["kind"] in ("stepping", "protocol")),
+                  key=lambda r: (order.get(r["task"], 99), r["backend"], r["kind"] != "protocol",
+                                 r["policy"], r["batch"]))
+    print("| task | backend | measure | batch | policy | env-steps/s | original env-steps/s "
+          "(how) | ratio | load |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
         o, how = orig(r["task"], r["policy"])
-        ratio = f"{r['steps_per_s'] / o:.1f}x" if o else "n/a"
-        pol = "excl. (random)" if r["policy"] == "none" else "incl. (R2PAC quick)"
-        print(f"| {r['task']} | {r['backend']} | {r['batch']} | {r['kind']} | {pol} | "
-              f"{r['steps_per_s']:,.0f} | {f'{o:,.0f} ({how})' if o else 'n/a'} | {ratio} |")
-    comp = [r for r in recs if r["kind"] == "compile" and "total_s" in r]
+        ratio = f"{r['steps_per_s'] / o:.2f}x" if o else "n/a"
+        pol = "excl." if r["policy"] == "none" else "incl."
+        print(f"| {r['task']} | {r['backend']} | {r['kind']} | {r['batch']} | {pol} | "
+              f"{r['steps_per_s']:,.0f} | {f'{o:,.0f} ({how})' if o else 'n/a'} | {ratio} | "
+              f"{r.get('load_avg', float('nan')):.1f} |")
+    print("\n| task | original seq (incl. resets) | seq, stepping only | async x2 | "
+          "R2PAC policy s/call (batch 1) |")
+    print("|---|---|---|---|---|")
+    for t in sorted(ref, key=lambda t: order.get(t, 99)):
+        seq, asy = ref[t].get("seq", {}), ref[t].get("async", {})
+        print(f"| {t} | {seq.get('steps_per_s', float('nan')):,.0f} | "
+              f"{seq.get('stepping_steps_per_s') or float('nan'):,.0f} | "
+              f"{asy.get('steps_per_s', float('nan')):,.0f} | "
+              f"{pol1.get(t, float('nan')) * 1e3:.1f} ms |")
+    comp = [r for r in recs if r["kind"] == "compile"]
     if comp:
-        print("\n| task | MJX model | reset lower+compile s | step lower+compile s | total s | "
-              "max abs obs gap vs C MuJoCo, 100 steps (before first done) |")
-        print("|---|---|---|---|---|---|")
-        for r in comp:
-            gap = (f"{r['obs_gap_100']:.2g} ({r['obs_gap_until_done']:.2g})"
-                   if "obs_gap_100" in r else "-")
+        print("\n| task | MJX step/reset | reset: lower + compile s | step: lower + compile s | "
+              "total s | step env-steps/s (B=20) | max abs obs gap to C MuJoCo: 10 steps / 100 "
+              "steps / 100 steps before the episode ends |")
+        print("|---|---|---|---|---|---|---|")
+        for r in sorted(comp, key=lambda r: (order.get(r["task"], 99), r["variant"] != "plain")):
+            gap = (f"{r['obs_gap_10']:.1e} / {r['obs_gap_100']:.1e} / "
+                   f"{r['obs_gap_until_done']:.1e}" if "obs_gap_100" in r else "-")
             print(f"| {r['task']} | {r['variant']} | "
-                  f"{r['reset_lower_s']:.1f}+{r['reset_compile_s']:.1f} | "
-                  f"{r['step_lower_s']:.1f}+{r['step_compile_s']:.1f} | {r['total_s']:.1f} | "
-                  f"{gap} |")
+                  f"{r['reset_lower_s']:.1f} + {r['reset_compile_s']:.1f} | "
+                  f"{r['step_lower_s']:.1f} + {r['step_compile_s']:.1f} | {r['total_s']:.1f} | "
+                  f"{r['step_steps_per_s_b20']:,.0f} | {gap} |")
+    agree = [r for r in recs if r["kind"] == "compile_agreement"]
+    for r in agree:
+        print(f"\n{r['task']}: lean vs plain MJX max abs obs difference: step 1 "
+              f"{r['lean_vs_plain_step1']:.1e}, 10 steps {r['lean_vs_plain_10']:.1e}, "
+              f"100 steps {r['lean_vs_plain_100']:.1e}")
 
 
 def _tasks(spec: str) -> list[str]:

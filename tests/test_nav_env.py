@@ -224,3 +224,33 @@ def test_mjx_backend_agrees_with_c_mujoco_over_a_few_steps():
         np.testing.assert_allclose(c.obs[0], obs[t + 1], atol=5e-3, rtol=1e-3)
     np.testing.assert_allclose(np.asarray(c.physics["state"])[0, 1:1 + qpos.shape[0]], qpos,
                                atol=1e-4)
+
+
+@pytest.mark.parametrize("name", ["CarButton2", "CarPush2", "CarGoal2", "PointPush2"])
+def test_mjx_variant_has_a_collision_function_for_every_pair(name):
+    """MJX (MuJoCo 4.0) has no cylinder-box collision: the MJX model keeps the car's wheels
+    away from boxes, yet lets them touch the floor, buttons (spheres) and pillars (capsules)."""
+    import mujoco
+    from mujoco.mjx._src.collision_driver import geom_pairs, has_collision_fn
+
+    from r2pac_jax.envs.navigation.objects import level_spec
+    from r2pac_jax.envs.navigation.world import build_model
+
+    m, _ = build_model(level_spec(name), "mjx")
+    pairs = list(geom_pairs(m))
+    for g1, g2, _ in pairs:
+        assert has_collision_fn(m.geom_type[g1], m.geom_type[g2]), (
+            m.geom(g1).name, m.geom(g2).name)
+    if name.startswith("Car"):
+        wheel = {m.geom("left").id, m.geom("right").id}
+        partners = {int(m.geom_type[g2 if g1 in wheel else g1])
+                    for g1, g2, _ in pairs if {g1, g2} & wheel}
+        T = mujoco.mjtGeom
+        want = {int(T.mjGEOM_PLANE)} | ({int(T.mjGEOM_SPHERE)} if "Button" in name else set())
+        want |= {int(T.mjGEOM_CAPSULE)} if "Push" in name else set()
+        assert partners == want
+        # the exact model (C MuJoCo) keeps the original's rule: wheels collide with boxes too
+        me, _ = build_model(level_spec(name), "exact")
+        wheel_e = {me.geom("left").id, me.geom("right").id}
+        assert any(me.geom_type[g2 if g1 in wheel_e else g1] == T.mjGEOM_BOX
+                   for g1, g2, _ in geom_pairs(me) if {g1, g2} & wheel_e)

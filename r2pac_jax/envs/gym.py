@@ -42,7 +42,6 @@ class TaskGymEnv(gymnasium.Env):
         obs_dim, act_dim = self.env.obs_dim, self.env.act_dim
         self.observation_space = spaces.Box(-np.inf, np.inf, (obs_dim,), np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (act_dim,), np.float32)
-        self.spec = None
         self._default_seed = seed
         self._key = None  # key chain for resets without a seed
         self._state = None

@@ -39,7 +39,7 @@ class AgentSpec:
     # the original's sensors kept out of the observation ("intrinsic constraints"); dropped
     # from our model because nothing reads them and MJX would compute them every substep
     unused_sensors: tuple = ("subtreecom", "subtreelinvel", "subtreeangmom")
-    wheels: tuple = ()  # cylinder geoms that MJX collides with the floor only
+    wheels: tuple = ()  # cylinder geoms that MJX keeps away from boxes (world.py)
 
     @property
     def obs_dim(self) -> int:

@@ -26,12 +26,16 @@ Two variants of the same model:
 - "exact" (C MuJoCo): the original's geometry: cylinder pillars, wheels colliding with
   everything, plus one MuJoCo `contact` sensor per cost-relevant object (agent subtree vs that
   body, data "found") so that contact tests come out of sensordata.
-- "mjx": MJX's JAX backend has no cylinder-box, cylinder-cylinder or cylinder-capsule
-  collision. The wheels (cylinders) collide with the floor only, and pillars are capsules whose
+- "mjx": MJX's JAX backend (MuJoCo 4.0) has no cylinder-box collision (nor cylinder-mesh),
+  and the car's body and the vases, push box and gremlins are boxes. So the wheels (cylinders)
+  collide with the floor and the immovable geoms only (buttons are spheres: sphere-cylinder;
+  pillars are capsules: capsule-cylinder), never with boxes; and pillars are capsules whose
   straight part runs from 0.5 m below the floor to 0.8 m above it: the same lateral surface as
   the original's cylinder (radius 0.2, z in [0, 1]) wherever the car, vases and the box can be
-  (below 0.8 m); both ends differ only where nothing reaches. MJX reads contacts directly
-  (`backends.mjx_touch`), so this variant has no contact sensors.
+  (below 0.8 m); both ends differ only where nothing reaches. What this costs is measured in
+  benchmarks/FIDELITY.md (a wheel that touches a vase, gremlin or the push box passes through
+  it). MJX reads contacts directly (`backends.mjx_touch`), so this variant has no contact
+  sensors.
 """
 from __future__ import annotations
 
@@ -48,7 +52,7 @@ from r2pac_jax.envs.navigation.objects import LevelSpec
 FLOOR = (1, 0)
 STATIC = (2, 0)
 MOVING = (4, 7)
-WHEEL_MJX = (0, 1)
+WHEEL_MJX = (0, FLOOR[0] | STATIC[0])  # the floor, buttons and pillars; no boxes
 
 
 @dataclasses.dataclass(frozen=True)
