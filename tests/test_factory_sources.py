@@ -7,6 +7,7 @@ import pytest
 from r2pac_jax.data import factory
 from r2pac_jax.data.dsrl import validate
 from r2pac_jax.data.factory import navigation as nav
+from r2pac_jax.data.factory.batch import episode_keys
 from r2pac_jax.tasks import get_task
 
 
@@ -29,7 +30,7 @@ def _knobs(n, risk, **kw):
 def test_navigation_rollout_is_valid_dsrl_data_and_deterministic(point_goal):
     env, scene, control = point_goal
     task = get_task("PointGoal1")
-    keys = nav._episode_keys(7, 3)
+    keys = episode_keys(7, 0, 3)
     a = nav.rollout(env, scene, control, keys, steps=25)
     b = nav.rollout(env, scene, control, keys, steps=25)
     ds = validate(a, "PointGoal1 rollout", task.obs_dim, task.act_dim, task.name)
@@ -37,7 +38,7 @@ def test_navigation_rollout_is_valid_dsrl_data_and_deterministic(point_goal):
     for k in a:
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
     # a different seed gives other layouts
-    c = nav.rollout(env, scene, control, nav._episode_keys(8, 3), steps=25)
+    c = nav.rollout(env, scene, control, episode_keys(8, 0, 3), steps=25)
     assert not np.array_equal(a["observations"], c["observations"])
     # actions respect the motors' limits (forward force saturates at 0.05 of the range)
     assert np.abs(a["actions"]).max() <= 1.0
@@ -127,7 +128,7 @@ def test_every_navigation_source_makes_valid_data(name):
     env = task.make_env(physics="mujoco")
     scene = nav.NavScene(env)
     control = nav.make_controller(scene)
-    keys = nav._episode_keys(0, 2)
+    keys = episode_keys(0, 0, 2)
     a = nav.rollout(env, scene, control, keys, steps=40)
     validate(a, name, task.obs_dim, task.act_dim, task.name)
     b = nav.rollout(env, scene, control, keys, steps=40)

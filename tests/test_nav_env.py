@@ -228,7 +228,7 @@ def test_mjx_backend_agrees_with_c_mujoco_over_a_few_steps():
 
 @pytest.mark.parametrize("name", ["CarButton2", "CarPush2", "CarGoal2", "PointPush2"])
 def test_mjx_variant_has_a_collision_function_for_every_pair(name):
-    """MJX (MuJoCo 4.0) has no cylinder-box collision: the MJX model keeps the car's wheels
+    """MJX (mujoco-mjx 3.17) has no cylinder-box collision: the MJX model keeps the car's wheels
     away from boxes, yet lets them touch the floor, buttons (spheres) and pillars (capsules)."""
     import mujoco
     from mujoco.mjx._src.collision_driver import geom_pairs, has_collision_fn

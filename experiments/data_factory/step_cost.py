@@ -20,12 +20,13 @@ import numpy as np
 
 def nav_cost(name, n, steps):
     from r2pac_jax.data.factory import navigation as nav
+    from r2pac_jax.data.factory.batch import episode_keys
     from r2pac_jax.tasks import get_task
 
     env = get_task(name).make_env(physics="mujoco")
     scene = nav.NavScene(env)
     control = nav.make_controller(scene)
-    keys = nav._episode_keys(0, n)
+    keys = episode_keys(0, 0, n)
     k_reset, k_knobs, k_steps = nav._split_keys(keys)
     knobs = nav._sample_knobs_batch(k_knobs)
     state = env.reset_batch(k_reset)

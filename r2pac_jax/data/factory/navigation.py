@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from r2pac_jax.data.factory.thinning import select_episodes
+from r2pac_jax.data.factory.batch import episode_keys, in_equal_batches, record_episodes
 
 NAV_TASKS = tuple(f"{a}{f}{lvl}" for a in ("Car", "Point") for f in ("Goal", "Button", "Push")
                   for lvl in (1, 2))
@@ -380,52 +380,15 @@ def rollout(env, scene: NavScene, control, keys: jax.Array, progress=None,
     if knobs is None:
         knobs = _sample_knobs_batch(k_knobs)
     state = env.reset_batch(k_reset)
-    alive = np.ones(n, bool)
-    rec = {k: [] for k in ("observations", "next_observations", "actions", "rewards", "costs",
-                           "terminals", "timeouts", "valid")}
-    wander_xy = jnp.zeros((n, 2), jnp.float32)
-    wandering = jnp.zeros((n,), bool)
-    reported = 0.0
-    for t in range(T):
-        actions, wander_xy, wandering = control(scene.read(state), knobs, wander_xy, wandering,
-                                                k_steps, jnp.int32(t))
-        actions = np.asarray(actions)
-        nxt = env.step_batch(state, actions)
-        term = np.asarray(nxt.terminated)
-        trunc = np.asarray(nxt.truncated)
-        rec["observations"].append(np.asarray(state.obs))
-        rec["next_observations"].append(np.asarray(nxt.obs))
-        rec["actions"].append(actions)
-        rec["rewards"].append(np.asarray(nxt.reward))
-        rec["costs"].append(np.asarray(nxt.cost))
-        rec["terminals"].append(term)
-        rec["timeouts"].append(trunc & ~term)
-        rec["valid"].append(alive.copy())
-        alive = alive & ~(term | trunc)
-        state = nxt
-        if progress is not None and (t + 1) % 100 == 0:
-            done = n * (t + 1) / T * progress_scale
-            progress(done - reported)
-            reported = done
-        if not alive.any():
-            break
-    if progress is not None:
-        progress(n * progress_scale - reported)
-    # episodes cut short by `steps` end in a timeout, so that the arrays stay valid DSRL data
-    rec["timeouts"][-1] = rec["timeouts"][-1] | (alive & rec["valid"][-1])
-    # [T, n, ...] -> episode-major rows of the steps each episode really took
-    valid = np.stack(rec.pop("valid"), 1)  # [n, T]
-    out = {}
-    for k, v in rec.items():
-        a = np.stack(v, 1)  # [n, T, ...]
-        out[k] = a[valid]
-    return out
+    carry = dict(wander_xy=jnp.zeros((n, 2), jnp.float32), wandering=jnp.zeros((n,), bool))
 
+    def act(t, state):
+        a, carry["wander_xy"], carry["wandering"] = control(
+            scene.read(state), knobs, carry["wander_xy"], carry["wandering"], k_steps,
+            jnp.int32(t))
+        return a
 
-def _episode_keys(seed: int, n: int) -> jax.Array:
-    """Episode i's key is fold_in(PRNGKey(seed), i): a smaller n gives a prefix."""
-    base = jax.random.PRNGKey(seed)
-    return jax.jit(jax.vmap(lambda i: jax.random.fold_in(base, i)))(jnp.arange(n))
+    return record_episodes(env, state, act, T, progress, progress_scale)
 
 
 def make_generate(task_name: str):
@@ -441,15 +404,8 @@ def make_generate(task_name: str):
         env = get_task(task_name).make_env(physics="mujoco")
         scene = NavScene(env)
         control = make_controller(scene)
-        nb = -(-n_trajectories // BATCH)
-        size = -(-n_trajectories // nb)  # equal batches: the jitted functions compile once
-        keys = _episode_keys(seed, nb * size)
-        parts = []
-        for i in range(0, n_trajectories, size):
-            parts.append(rollout(env, scene, control, keys[i:i + size], progress,
-                                 1.0 / OVERSAMPLE))
-        out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        return select_episodes(out, np.arange(n_trajectories))  # drop the batch's extras
+        return in_equal_batches(n_trajectories, BATCH, lambda first, size: rollout(
+            env, scene, control, episode_keys(seed, first, size), progress, 1.0 / OVERSAMPLE))
 
     return generate
 

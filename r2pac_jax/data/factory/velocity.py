@@ -32,10 +32,9 @@ from __future__ import annotations
 
 from typing import Optional
 
-import jax
 import numpy as np
 
-from r2pac_jax.data.factory.thinning import select_episodes
+from r2pac_jax.data.factory.batch import episode_keys, in_equal_batches, record_episodes
 
 VELOCITY_TASKS = ("AntVelocity", "HalfCheetahVelocity", "SwimmerVelocity", "HopperVelocity",
                   "Walker2dVelocity")
@@ -179,15 +178,9 @@ def rollout(env, task: str, seed: int, first: int, n: int, progress=None,
     J = env.act_dim
     dt = env.task.dt
     plan = Plan(seed, first, n, task, T, J) if plan is None else plan
-    base = jax.random.PRNGKey(seed)
-    keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(np.arange(first, first + n))
-    state = env.reset_batch(keys)
-    # a phase offset per trajectory, so that gaits do not all start in step
-    alive = np.ones(n, bool)
-    rec = {k: [] for k in ("observations", "next_observations", "actions", "rewards", "costs",
-                           "terminals", "timeouts", "valid")}
-    reported = 0.0
-    for t in range(T):
+    state = env.reset_batch(episode_keys(seed, first, n))
+
+    def act(t, state):
         obs = np.asarray(state.obs)
         which, level = plan.at(t)
         a = np.zeros((n, J))
@@ -198,30 +191,9 @@ def rollout(env, task: str, seed: int, first: int, n: int, progress=None,
             a = np.where((which == k)[:, None], gait_actions(
                 params[k], t * dt, level, phase, obs, J, fb), a)
         a = np.clip(a + plan.noise[:, t], -1.0, 1.0).astype(np.float32)
-        nxt = env.step_batch(state, a)
-        term = np.asarray(nxt.terminated)
-        trunc = np.asarray(nxt.truncated)
-        rec["observations"].append(obs)
-        rec["next_observations"].append(np.asarray(nxt.obs))
-        rec["actions"].append(a)
-        rec["rewards"].append(np.asarray(nxt.reward))
-        rec["costs"].append(np.asarray(nxt.cost))
-        rec["terminals"].append(term)
-        rec["timeouts"].append(trunc & ~term)
-        rec["valid"].append(alive.copy())
-        alive = alive & ~(term | trunc)
-        state = nxt
-        if progress is not None and (t + 1) % 100 == 0:
-            done = n * (t + 1) / T * progress_scale
-            progress(done - reported)
-            reported = done
-        if not alive.any():
-            break
-    if progress is not None:
-        progress(n * progress_scale - reported)
-    rec["timeouts"][-1] = rec["timeouts"][-1] | alive  # episodes cut short by `steps`
-    valid = np.stack(rec.pop("valid"), 1)
-    return {k: np.stack(v, 1)[valid] for k, v in rec.items()}
+        return a
+
+    return record_episodes(env, state, act, T, progress, progress_scale)
 
 
 def make_generate(task: str):
@@ -231,13 +203,8 @@ def make_generate(task: str):
         from r2pac_jax.tasks import get_task
 
         env = get_task(task).make_env(physics="mujoco")
-        nb = -(-n_trajectories // BATCH)
-        size = -(-n_trajectories // nb)  # equal batches: one compile of the env's functions
-        parts = []
-        for first in range(0, n_trajectories, size):
-            parts.append(rollout(env, task, seed, first, size, progress, 1.0 / OVERSAMPLE))
-        out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        return select_episodes(out, np.arange(n_trajectories))  # drop the batch's extras
+        return in_equal_batches(n_trajectories, BATCH, lambda first, size: rollout(
+            env, task, seed, first, size, progress, 1.0 / OVERSAMPLE))
 
     return generate
 

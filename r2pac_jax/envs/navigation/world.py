@@ -26,7 +26,7 @@ Two variants of the same model:
 - "exact" (C MuJoCo): the original's geometry: cylinder pillars, wheels colliding with
   everything, plus one MuJoCo `contact` sensor per cost-relevant object (agent subtree vs that
   body, data "found") so that contact tests come out of sensordata.
-- "mjx": MJX's JAX backend (MuJoCo 4.0) has no cylinder-box collision (nor cylinder-mesh),
+- "mjx": MJX's JAX backend (mujoco-mjx 3.17) has no cylinder-box collision (nor cylinder-mesh),
   and the car's body and the vases, push box and gremlins are boxes. So the wheels (cylinders)
   collide with the floor and the immovable geoms only (buttons are spheres: sphere-cylinder;
   pillars are capsules: capsule-cylinder), never with boxes; and pillars are capsules whose
