@@ -45,3 +45,35 @@ def _default(o):
     if hasattr(o, "tolist"):
         return o.tolist()
     raise TypeError(f"not JSON serialisable: {type(o)}")
+
+
+class DirectoryBusy(RuntimeError):
+    """Another live process is writing the same run directory."""
+
+
+def lock_directory(path):
+    """Hold DIR/.lock exclusively until the returned file is closed or this process ends.
+
+    The lock is the kernel's (flock), so a killed process, even by SIGKILL, releases it: a
+    restarted run is never refused by a stale lock, while a second live writer of the same
+    directory (a launcher started twice) is refused before it writes anything."""
+    import fcntl
+    import socket
+
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    f = open(path / ".lock", "a+")
+    try:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        f.seek(0)
+        holder = f.read().strip() or "an unknown process"
+        f.close()
+        raise DirectoryBusy(f"{path} is being written by {holder}; wait for it to finish or "
+                            "stop it, then rerun (with --resume to continue from its last "
+                            "checkpoint)") from None
+    f.seek(0)
+    f.truncate()
+    f.write(f"pid {os.getpid()} on {socket.gethostname()}\n")
+    f.flush()
+    return f

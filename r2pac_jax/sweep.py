@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from r2pac_jax.config import ALGOS, Config, ConfigError, HPARAM_KEYS, make_config, resolve_preset
-from r2pac_jax.io import atomic_write_json, atomic_write_text
+from r2pac_jax.io import DirectoryBusy, atomic_write_json, atomic_write_text
 
 TOP_KEYS = {"name", "description", "task", "tasks", "algo", "algos", "preset", "seeds",
             "eval_episodes", "physics", "dataset", "config", "grid"}
@@ -451,7 +451,7 @@ def main(argv=None) -> int:
                         args.task, progress=not args.no_progress)
         print((out / "table.md").read_text() if (out / "table.md").exists() else "")
         return 0
-    except (SweepError, ConfigError) as e:
+    except (SweepError, ConfigError, DirectoryBusy) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
 

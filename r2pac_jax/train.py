@@ -29,7 +29,7 @@ from r2pac_jax.config import (ALGOS, PRESETS, Config, ConfigError, HParams, chec
                               make_config, resolve_preset)
 from r2pac_jax.data.chunks import ChunkedData, build_chunks, sample
 from r2pac_jax.data.dsrl import Dataset
-from r2pac_jax.io import atomic_write_json, atomic_write_text
+from r2pac_jax.io import DirectoryBusy, atomic_write_json, atomic_write_text, lock_directory
 from r2pac_jax.tasks import TaskSpec, get_task
 
 
@@ -217,7 +217,15 @@ class Run:
     # main loop ---------------------------------------------------------------------------------
     def run(self, resume: bool = False, stop_after: Optional[int] = None) -> Optional[dict]:
         """Train to the end (or stop after `stop_after` blocks, as an interruption would, and
-        return None); with `resume`, continue from the latest checkpoint in the run directory."""
+        return None); with `resume`, continue from the latest checkpoint in the run directory.
+        The directory is locked meanwhile: a second live process on it gets DirectoryBusy."""
+        lock = lock_directory(self.out)
+        try:
+            return self._run(resume, stop_after)
+        finally:
+            lock.close()
+
+    def _run(self, resume: bool, stop_after: Optional[int]) -> Optional[dict]:
         from r2pac_jax.checkpoint import Checkpointer
         from r2pac_jax.metrics_log import MetricsLog
 
@@ -493,7 +501,8 @@ def main(argv=None) -> int:
         for a in algos:
             sub = out if a == args.algo else out / "baselines" / a
             results[a] = run_algo(task, a, args, ds, sub, log)
-    except (ConfigError, DatasetError, ChunkError, UnknownTaskError, EnvUnavailableError) as e:
+    except (ConfigError, DatasetError, ChunkError, UnknownTaskError, EnvUnavailableError,
+            DirectoryBusy) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     from r2pac_jax.report import results_table

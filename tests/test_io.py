@@ -27,3 +27,38 @@ def test_failed_write_leaves_the_old_file(tmp_path):
         atomic_write_json(p, {"x": object()})
     assert p.read_text() == "old\n"
     assert [q.name for q in tmp_path.iterdir()] == ["r.json"]
+
+
+def test_a_run_directory_has_one_live_writer(tmp_path):
+    from r2pac_jax.io import DirectoryBusy, lock_directory
+
+    held = lock_directory(tmp_path / "run")
+    with pytest.raises(DirectoryBusy, match=r"run is being written by pid \d+ on .*--resume"):
+        lock_directory(tmp_path / "run")
+    held.close()  # released (the kernel also releases it when the holder dies)
+    lock_directory(tmp_path / "run").close()
+
+
+def test_train_cli_refuses_a_directory_another_process_writes(tmp_path, capsys):
+    """Two launchers on one --out would interleave checkpoints and logs: the second stops
+    with a clear error before writing anything, and the directory stays untouched."""
+    import subprocess
+    import sys
+
+    from r2pac_jax.train import main
+
+    out = tmp_path / "run"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time; from r2pac_jax.io import lock_directory; "
+         f"f = lock_directory({str(out)!r}); print('held', flush=True); time.sleep(60)"],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        assert main(["--task", "ReachAvoid", "--out", str(out), "--baselines", "none",
+                     "--steps", "10", "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert f"pid {holder.pid}" in err and "is being written by" in err
+        assert sorted(p.name for p in out.iterdir()) == [".lock"]
+    finally:
+        holder.kill()
+        holder.wait()
