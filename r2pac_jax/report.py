@@ -8,6 +8,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from r2pac_jax.io import _umask_mode
+
 SAFE_LIMIT = 1.0  # a policy is safe when its normalised cost is below 1
 
 
@@ -63,6 +65,7 @@ def _savefig(fig, path) -> Path:
     os.close(fd)
     try:
         fig.savefig(tmp, dpi=120, bbox_inches="tight")
+        os.chmod(tmp, _umask_mode())  # mkstemp made it 0600; plots are shared like results
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

@@ -62,3 +62,19 @@ def test_train_cli_refuses_a_directory_another_process_writes(tmp_path, capsys):
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_plots_get_the_umask_mode_too(tmp_path):
+    from r2pac_jax.report import _plt, _savefig
+
+    plt = _plt()
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [1, 0])
+    old = os.umask(0o022)
+    try:
+        p = _savefig(fig, tmp_path / "plot.png")
+    finally:
+        os.umask(old)
+        plt.close(fig)
+    assert stat.S_IMODE(p.stat().st_mode) == 0o644
+    assert [q.name for q in tmp_path.iterdir()] == ["plot.png"]
