@@ -1,6 +1,7 @@
 """Atomic file writes: a result file is complete or absent, never half-written."""
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import tempfile
@@ -13,22 +14,32 @@ def _umask_mode() -> int:
     return 0o666 & ~mask
 
 
-def atomic_write_text(path, text: str) -> Path:
+@contextlib.contextmanager
+def atomic_path(path, suffix: str = ".tmp"):
+    """Yield a temporary path beside `path`; when the block ends without error the file there
+    replaces `path` at once (umask's usual mode), otherwise it is removed. Every result file
+    (JSON, text, PNG) is written through this one mechanism."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
     try:
+        yield Path(tmp)
         # mkstemp creates 0600 files; results are shared, so give them the umask's usual mode
-        os.fchmod(fd, _umask_mode())
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
+        os.chmod(tmp, _umask_mode())
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-    return path
+
+
+def atomic_write_text(path, text: str) -> Path:
+    with atomic_path(path) as tmp:
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+    return Path(path)
 
 
 def atomic_write_json(path, obj) -> Path:

@@ -1,14 +1,12 @@
 """Tables in the paper's Table 1 format and PNG plots (dataset composition, training curves)."""
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
 
-from r2pac_jax.io import _umask_mode
+from r2pac_jax.io import atomic_path
 
 SAFE_LIMIT = 1.0  # a policy is safe when its normalised cost is below 1
 
@@ -59,18 +57,9 @@ def results_table(cells: dict[str, dict[str, dict]], columns: Sequence[str] | No
 
 def _savefig(fig, path) -> Path:
     """Save a matplotlib figure atomically as PNG."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=120, bbox_inches="tight")
-        os.chmod(tmp, _umask_mode())  # mkstemp made it 0600; plots are shared like results
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
+    return Path(path)
 
 
 def _plt():

@@ -78,3 +78,17 @@ def test_plots_get_the_umask_mode_too(tmp_path):
         plt.close(fig)
     assert stat.S_IMODE(p.stat().st_mode) == 0o644
     assert [q.name for q in tmp_path.iterdir()] == ["plot.png"]
+
+
+def test_datasets_are_written_through_the_same_atomic_path(tmp_path):
+    from r2pac_jax.data.dsrl import load_dsrl, write_dsrl
+    from r2pac_jax.data.factory import reach_avoid
+
+    old = os.umask(0o022)
+    try:
+        p = write_dsrl(tmp_path / "d.hdf5", reach_avoid.generate(4, seed=0))
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(p.stat().st_mode) == 0o644
+    assert [q.name for q in tmp_path.iterdir()] == ["d.hdf5"]
+    assert load_dsrl(p).size > 0

@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import tempfile
 from pathlib import Path
 from typing import Optional
 
 import numpy as np
+
+from r2pac_jax.io import atomic_path
 
 FLOAT_KEYS = ("observations", "next_observations", "actions", "rewards", "costs")
 FLAG_KEYS = ("terminals", "timeouts")
@@ -165,13 +166,6 @@ def load_dsrl(path, obs_dim: Optional[int] = None, act_dim: Optional[int] = None
     return validate(arrays, str(path), obs_dim, act_dim, task_name)
 
 
-def atomic_write_bytes_path(path: Path) -> Path:
-    """A temporary sibling of `path` (same directory, so os.replace is atomic)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    return Path(tmp)
-
-
 def write_dsrl(path, data, attrs: Optional[dict] = None) -> Path:
     """Write a dataset in DSRL's format (float32 gzip, bool flags), atomically.
 
@@ -182,18 +176,12 @@ def write_dsrl(path, data, attrs: Optional[dict] = None) -> Path:
 
     path = Path(path).expanduser()
     ds = data if isinstance(data, Dataset) else validate(data, str(path))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = atomic_write_bytes_path(path)
-    try:
+    with atomic_path(path) as tmp:
         with h5py.File(tmp, "w") as f:
             for k, v in ds.as_dict().items():
                 f.create_dataset(k, data=v, compression="gzip")
             for k, v in (attrs or {}).items():
                 f.attrs[k] = v
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return path
 
 
