@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# The GPU measurements of benchmarks/RESULTS.md, batched into few long calls on a lent machine.
+#
+#   bash benchmarks/gpu_session.sh SECTION OUTDIR      SECTION: train | env | alpha_h
+#
+# The GPU machine has jax/flax/optax/orbax/chex/h5py but no mujoco and no network: carry the
+# cp312 wheels in .whl/ (see benchmarks/RESULTS.md, "GPU figures") and they are installed
+# first. Every step has its own time limit so one slow step cannot take the others with it;
+# each step appends JSON lines to OUTDIR as it finishes.
+set -u
+section=${1:?section: train | env | alpha_h}
+out=${2:?output directory}
+mkdir -p "$out"
+export PYTHONUNBUFFERED=1
+if ls .whl/*.whl >/dev/null 2>&1; then
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+    --target /tmp/site .whl/*.whl || exit 1
+  export PYTHONPATH=/tmp/site:$PWD
+else
+  export PYTHONPATH=$PWD
+fi
+nvidia-smi -L
+python3 -c "import jax, flax, optax, orbax.checkpoint, chex; print('jax', jax.__version__, 'flax', flax.__version__, jax.devices())"
+
+step() {  # step LIMIT_S NAME CMD...: run CMD, appending stdout to OUTDIR/NAME.jsonl
+  local limit=$1 name=$2; shift 2
+  echo "=== $name: $*"
+  local t0=$SECONDS
+  timeout "$limit" "$@" | tee -a "$out/$name.jsonl"
+  echo "=== $name: rc ${PIPESTATUS[0]} after $((SECONDS - t0)) s"
+}
+
+case $section in
+  train)
+    step 150 train_speed python3 benchmarks/train_speed.py --presets quick --seeds 1,4,16 \
+      --blocks 3 --block-steps 1000
+    step 200 train_speed python3 benchmarks/train_speed.py --presets paper --seeds 1,4 \
+      --blocks 3 --block-steps 200
+    step 100 sweep_speed python3 benchmarks/sweep_speed.py --cells 4 --seeds 1 --steps 1000
+    step 150 sweep_speed python3 benchmarks/sweep_speed.py --cells 8 --seeds 3 --steps 2000
+    ;;
+  env)
+    step 330 env_speed python3 benchmarks/env_speed.py stepping \
+      --tasks HalfCheetahVelocity,AntVelocity,CarGoal2 --backends mjx --batches 1024,8192 \
+      --steps 100 --no-fidelity
+    step 200 env_speed python3 benchmarks/env_speed.py protocol \
+      --tasks HalfCheetahVelocity,CarGoal2 --backends mjx --episodes 1024 --policies none,r2pac
+    ;;
+  alpha_h)
+    step 560 alpha_h python3 -m r2pac_jax.sweep sweeps/alpha_h.toml --out /tmp/alpha_h
+    python3 -m r2pac_jax.sweep report /tmp/alpha_h
+    cp /tmp/alpha_h/*.csv /tmp/alpha_h/*.md /tmp/alpha_h/*.png "$out"/ 2>/dev/null
+    ls -la /tmp/alpha_h
+    ;;
+  *) echo "unknown section $section (train | env | alpha_h)"; exit 2 ;;
+esac
