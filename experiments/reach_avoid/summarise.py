@@ -81,7 +81,8 @@ def main():
 
     # 3. the sweeps, every cell under every rule
     for sweep_dir in sorted(p for p in out.glob("sweep_*") if (p / "cells").is_dir()):
-        recs = [json.loads(p.read_text()) for p in sorted((sweep_dir / "cells").glob("*.json"))]
+        recs = [json.loads(p.read_text()) for p in (sweep_dir / "cells").glob("*.json")]
+        recs.sort(key=lambda r: sorted(r["axes"].items()))  # rows in grid order, not by hash
         table: dict = {}
         for rec in recs:
             run_dir = Path(rec["run_dir"])
