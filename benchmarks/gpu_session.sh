@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # The GPU measurements of benchmarks/RESULTS.md, batched into few long calls on a lent machine.
 #
-#   bash benchmarks/gpu_session.sh SECTION OUTDIR      SECTION: train | env | alpha_h
+#   bash benchmarks/gpu_session.sh SECTION OUTDIR      SECTION: train | env | alpha_h | quality_bar
 #
 # The GPU machine has jax/flax/optax/orbax/chex/h5py but no mujoco and no network: carry the
 # cp312 wheels in .whl/ (see benchmarks/RESULTS.md, "GPU figures") and they are installed
 # first. Every step has its own time limit so one slow step cannot take the others with it;
 # each step appends JSON lines to OUTDIR as it finishes.
 set -u
-section=${1:?section: train | env | alpha_h}
+section=${1:?section: train | env | alpha_h | quality_bar}
 out=${2:?output directory}
 mkdir -p "$out"
 export PYTHONUNBUFFERED=1
@@ -52,5 +52,12 @@ case $section in
     cp /tmp/alpha_h/*.csv /tmp/alpha_h/*.md /tmp/alpha_h/*.png "$out"/ 2>/dev/null
     ls -la /tmp/alpha_h
     ;;
-  *) echo "unknown section $section (train | env | alpha_h)"; exit 2 ;;
+  quality_bar)  # issue 5's table for the tasks in $TASKS (comma-separated), C MuJoCo evaluation
+    step 560 quality_bar python3 experiments/data_factory/quality_bar.py --tasks "${TASKS:?}" \
+      --out /tmp/quality_bar --physics mujoco
+    python3 experiments/data_factory/quality_bar.py --tasks "$TASKS" --out /tmp/quality_bar \
+      --report-only > "$out/quality_bar.md"
+    (cd /tmp/quality_bar && tar czf "$out/quality_bar_runs.tar.gz" */*/results.json */*/config.json)
+    ;;
+  *) echo "unknown section $section (train | env | alpha_h | quality_bar)"; exit 2 ;;
 esac

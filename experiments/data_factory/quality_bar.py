@@ -2,7 +2,8 @@
 (quick preset) should be safe and ahead of BC-safe, averaged over 3 seeds.
 
     python experiments/data_factory/quality_bar.py [--tasks CarGoal2,SwimmerVelocity,...]
-        [--out runs/quality_bar] [--seeds 3] [--eval-every 20000] [--report-only]
+        [--out runs/quality_bar] [--seeds 3] [--eval-every 20000] [--physics auto|mujoco|mjx]
+        [--report-only]
 
 Each (task, algo) is one `python -m r2pac_jax.train` run in OUT/TASK/ALGO; a finished run
 (results.json present) is skipped, an interrupted one resumes from its checkpoint, so the
@@ -29,13 +30,19 @@ def default_tasks() -> list[str]:
     return [n for n, t in TASKS.items() if t.has_env and factory.has_source(t)]
 
 
-def run_one(task: str, algo: str, out: Path, seeds: int, eval_every: int) -> None:
+def run_one(task: str, algo: str, out: Path, seeds: int, eval_every: int,
+            physics: str = "auto") -> None:
+    from r2pac_jax.tasks import get_task
+
     run_dir = out / task / algo
     if (run_dir / "results.json").exists():
         return
+    if get_task(task).family == "demo":  # pure JAX: no physics backend to choose
+        physics = "auto"
     cmd = [sys.executable, "-m", "r2pac_jax.train", "--task", task, "--algo", algo,
            "--preset", "quick", "--seeds", str(seeds), "--baselines", "none",
-           "--eval-every", str(eval_every), "--out", str(run_dir), "--no-progress"]
+           "--eval-every", str(eval_every), "--physics", physics, "--out", str(run_dir),
+           "--no-progress"]
     if (run_dir / "checkpoints").is_dir():
         cmd.append("--resume")
     print(" ".join(cmd), flush=True)
@@ -85,6 +92,9 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--eval-every", type=int, default=20_000,
                     help="evaluate at the end of the quick preset's 20k policy steps only")
+    ap.add_argument("--physics", default="auto",
+                    help="evaluation physics; on a GPU machine `mujoco` (C MuJoCo on its CPU "
+                         "cores) beats MJX for the navigation tasks (benchmarks/RESULTS.md)")
     ap.add_argument("--report-only", action="store_true")
     args = ap.parse_args()
     tasks = args.tasks.split(",") if args.tasks else default_tasks()
@@ -92,7 +102,7 @@ def main() -> int:
     if not args.report_only:
         for task in tasks:
             for algo in ALGOS:
-                run_one(task, algo, out, args.seeds, args.eval_every)
+                run_one(task, algo, out, args.seeds, args.eval_every, args.physics)
             print(report(out, tasks), flush=True)
     print(report(out, tasks))
     return 0
