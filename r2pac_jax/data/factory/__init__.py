@@ -4,8 +4,14 @@ A source is a dict: `name`, `generate(n_trajectories, seed, progress) -> DSRL ar
 `default_trajectories`, and optionally `oversample` (generate that many times more
 trajectories, then thin them to the requested number with DSRL's density grid).
 
+Two kinds of source: `scripted` (each task's default, the controllers of navigation.py,
+velocity.py and reach_avoid.py) and `ppo-lagrangian` (DSRL's recipe, ppo_lagrangian.py; JAX
+environments only: ReachAvoid, or the MuJoCo tasks on MJX).
+
 Files go to `$R2PAC_DATA_DIR` (default `~/.cache/r2pac_jax/datasets`) as
-`{Task}-generated-s{seed}-n{trajectories}.hdf5` with a JSON card beside them. The HDF5 file is
+`{Task}-generated-s{seed}-n{trajectories}.hdf5` (scripted) or
+`{Task}-generated-ppolag-s{seed}-n{trajectories}.hdf5` with a JSON card beside them; `train`
+picks up the scripted ones by itself, a PPO-Lagrangian one is passed with `--dataset`. The HDF5 file is
 written atomically and the card last, so a dataset counts as present only when both exist.
 """
 from __future__ import annotations
@@ -34,6 +40,37 @@ def _sources() -> dict[str, dict]:
     return {"ReachAvoid": reach_avoid.SOURCE, **navigation.SOURCES, **velocity.SOURCES}
 
 
+SOURCE_KINDS = ("scripted", "ppo-lagrangian")
+
+
+def _source(task: TaskSpec, kind: str, physics: str = "auto") -> dict:
+    """The data source of `kind` for a task; FactoryError naming the fix if there is none."""
+    if kind not in SOURCE_KINDS:
+        raise FactoryError(f"unknown data source {kind!r}; choose one of {', '.join(SOURCE_KINDS)}")
+    srcs = _sources()
+    if task.name not in srcs:
+        raise FactoryError(f"no data source for task {task.name!r} yet; tasks with one: "
+                           f"{', '.join(sorted(srcs))}. Pass --dataset FILE or put DSRL's file "
+                           "in $DSRL_DATASET_DIR")
+    if kind == "scripted":
+        return srcs[task.name]
+    if physics == "mujoco":
+        raise FactoryError("the ppo-lagrangian source trains inside JAX and cannot use the "
+                           "C-MuJoCo backend; use --physics mjx (an accelerator) or --source "
+                           "scripted")
+    from r2pac_jax.data.factory import ppo_lagrangian
+
+    oversample = 2  # record twice the episodes, then thin them on DSRL's density grid
+
+    def gen(n, seed, progress=None):
+        scaled = None if progress is None else (lambda k: progress(k / oversample))
+        return ppo_lagrangian.generate(task, n, seed, physics=physics, progress=scaled)
+
+    return dict(name="PPO-Lagrangian with an annealed cost limit (JAX), snapshot rollouts",
+                generate=gen, default_trajectories=srcs[task.name]["default_trajectories"],
+                oversample=oversample)
+
+
 def has_source(task: TaskSpec) -> bool:
     return task.name in _sources()
 
@@ -42,8 +79,9 @@ def cache_dir() -> Path:
     return Path(os.environ.get("R2PAC_DATA_DIR", "~/.cache/r2pac_jax/datasets")).expanduser()
 
 
-def dataset_path(task: TaskSpec, seed: int, trajectories: int) -> Path:
-    return cache_dir() / f"{task.name}-generated-s{seed}-n{trajectories}.hdf5"
+def dataset_path(task: TaskSpec, seed: int, trajectories: int, source: str = "scripted") -> Path:
+    tag = "" if source == "scripted" else "-ppolag"
+    return cache_dir() / f"{task.name}-generated{tag}-s{seed}-n{trajectories}.hdf5"
 
 
 def card_path(path: Path) -> Path:
@@ -98,18 +136,14 @@ def make_card(task: TaskSpec, ds: Dataset, seed: int, trajectories: int, source:
 
 
 def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: int = 0,
-                     progress: Optional[Callable[[int], None]] = None, plot: bool = True) -> Path:
-    """Make (or reuse) the dataset file for (task, seed, trajectories); return its path."""
-    srcs = _sources()
-    if task.name not in srcs:
-        raise FactoryError(f"no data source for task {task.name!r} yet; tasks with one: "
-                           f"{', '.join(sorted(srcs))}. Pass --dataset FILE or put DSRL's file "
-                           "in $DSRL_DATASET_DIR")
-    src = srcs[task.name]
+                     progress: Optional[Callable[[int], None]] = None, plot: bool = True,
+                     source: str = "scripted", physics: str = "auto") -> Path:
+    """Make (or reuse) the dataset file for (task, seed, trajectories, source); its path."""
+    src = _source(task, source, physics)
     n = trajectories or src["default_trajectories"]
     if n < 1:
         raise FactoryError(f"--trajectories must be >= 1, got {n}")
-    path = dataset_path(task, seed, n)
+    path = dataset_path(task, seed, n, source)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         probe = path.parent / f".write-test-{os.getpid()}"
@@ -134,12 +168,13 @@ def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: i
     ds = validate(arrays, str(path), task.obs_dim, task.act_dim, task.name)
     card = make_card(task, ds, seed, n, src["name"])
     card["thinning"] = thinning
-    write_dsrl(path, ds, attrs={"task": task.name, "generated": True, "seed": seed})
+    write_dsrl(path, ds, attrs={"task": task.name, "generated": True, "seed": seed,
+                                "source": source})
     if plot:
         from r2pac_jax.report import plot_composition
 
         rets, costs = ds.episode_sums()
         plot_composition(rets, costs, task.kappa, path.with_suffix(".png"),
-                         f"{task.name} generated (seed {seed}, {n} trajectories)")
+                         f"{task.name} generated ({source}, seed {seed}, {n} trajectories)")
     atomic_write_json(card_path(path), card)  # last: marks the dataset complete
     return path
