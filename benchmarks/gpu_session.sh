@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # The GPU measurements of benchmarks/RESULTS.md, batched into few long calls on a lent machine.
 #
-#   bash benchmarks/gpu_session.sh SECTION OUTDIR      SECTION: train | env | alpha_h | quality_bar
+#   bash benchmarks/gpu_session.sh SECTION OUTDIR      SECTION: train | env | alpha_h | quality_bar | ppolag
 #
 # The GPU machine has jax/flax/optax/orbax/chex/h5py but no mujoco and no network: carry the
 # cp312 wheels in .whl/ (see benchmarks/RESULTS.md, "GPU figures") and they are installed
 # first. Every step has its own time limit so one slow step cannot take the others with it;
 # each step appends JSON lines to OUTDIR as it finishes.
 set -u
-section=${1:?section: train | env | alpha_h | quality_bar}
+section=${1:?section: train | env | alpha_h | quality_bar | ppolag}
 out=${2:?output directory}
 mkdir -p "$out"
 export PYTHONUNBUFFERED=1
@@ -59,5 +59,13 @@ case $section in
       --report-only > "$out/quality_bar.md"
     (cd /tmp/quality_bar && tar czf "$out/quality_bar_runs.tar.gz" */*/results.json */*/config.json)
     ;;
-  *) echo "unknown section $section (train | env | alpha_h | quality_bar)"; exit 2 ;;
+  ppolag)  # issue 5's DSRL-recipe source on MJX for the tasks in $TASKS; cards and plots back
+    export R2PAC_DATA_DIR=/tmp/ppolag
+    for t in ${TASKS//,/ }; do
+      step 560 ppolag python3 -m r2pac_jax.data make --task "$t" --source ppo-lagrangian \
+        --physics mjx
+    done
+    cp /tmp/ppolag/*.json /tmp/ppolag/*.png "$out"/ 2>/dev/null
+    ;;
+  *) echo "unknown section $section (train | env | alpha_h | quality_bar | ppolag)"; exit 2 ;;
 esac
