@@ -95,3 +95,14 @@ def test_factory_writes_a_separately_named_dataset(tmp_path, monkeypatch):
     assert card["thinning"]["generated"] == 10
     # train's automatic lookup only takes the scripted source's files
     assert factory.find_cached(task) is None
+
+
+@pytest.mark.slow
+def test_runs_on_an_mjx_task():
+    """The recipe's point on an accelerator: a MuJoCo task on MJX (minutes to compile on CPU)."""
+    task = get_task("HalfCheetahVelocity")
+    cfg = pl.PPOLagConfig(num_envs=4, rollout_len=10, updates=2, epochs=1, minibatches=1,
+                          hidden=(16,), snapshots=2, limit_start=40.0, limit_end=5.0)
+    a = pl.generate(task, 2, seed=0, physics="mjx", cfg=cfg, log=lambda m: None)
+    ds = validate(a, "ppo-mjx", task.obs_dim, task.act_dim, task.name)
+    assert len(ds.episode_sums()[0]) == 2 and ds.size == 2 * task.episode_len
