@@ -14,7 +14,7 @@ def main(argv=None) -> int:
     mk.add_argument("--task", required=True)
     mk.add_argument("--trajectories", type=int, default=None)
     mk.add_argument("--seed", type=int, default=0)
-    mk.add_argument("--source", default="scripted",
+    mk.add_argument("--source", default="scripted", choices=["scripted", "ppo-lagrangian"],
                     help="scripted (default: each task's controllers) | ppo-lagrangian (DSRL's "
                          "recipe in JAX; ReachAvoid, or MuJoCo tasks with --physics mjx)")
     mk.add_argument("--physics", default="auto", help="ppo-lagrangian only: auto | mjx")

@@ -11,8 +11,9 @@ environments only: ReachAvoid, or the MuJoCo tasks on MJX).
 Files go to `$R2PAC_DATA_DIR` (default `~/.cache/r2pac_jax/datasets`) as
 `{Task}-generated-s{seed}-n{trajectories}.hdf5` (scripted) or
 `{Task}-generated-ppolag-s{seed}-n{trajectories}.hdf5` with a JSON card beside them; `train`
-picks up the scripted ones by itself, a PPO-Lagrangian one is passed with `--dataset`. The HDF5 file is
-written atomically and the card last, so a dataset counts as present only when both exist.
+picks up the scripted ones by itself, a PPO-Lagrangian one is passed with `--dataset`. The HDF5
+file is written atomically and the card last, so a dataset counts as present only when both
+exist.
 """
 from __future__ import annotations
 
