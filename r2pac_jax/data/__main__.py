@@ -6,6 +6,8 @@ import argparse
 import sys
 import time
 
+from r2pac_jax.data.factory import SOURCE_KINDS
+
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m r2pac_jax.data")
@@ -14,7 +16,7 @@ def main(argv=None) -> int:
     mk.add_argument("--task", required=True)
     mk.add_argument("--trajectories", type=int, default=None)
     mk.add_argument("--seed", type=int, default=0)
-    mk.add_argument("--source", default="scripted", choices=["scripted", "ppo-lagrangian"],
+    mk.add_argument("--source", default="scripted", choices=SOURCE_KINDS,
                     help="scripted (default: each task's controllers) | ppo-lagrangian (DSRL's "
                          "recipe in JAX; ReachAvoid, or MuJoCo tasks with --physics mjx)")
     mk.add_argument("--physics", default="auto", help="ppo-lagrangian only: auto | mjx")

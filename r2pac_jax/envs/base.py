@@ -10,7 +10,7 @@ directly; `evaluate.py` then runs a Python loop over control steps instead of `l
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
@@ -80,6 +80,26 @@ class JaxEnv:
         if not hasattr(self, "_step_batch"):
             self._step_batch = jax.jit(jax.vmap(self.step))
         return self._step_batch(state, actions)
+
+
+def record_episode(env, act: Callable[[EnvState, jax.Array], jax.Array], key: jax.Array) -> dict:
+    """One episode of a JAX env under `act(state, key) -> action [A]` (jittable, vmappable):
+    per-step arrays of length env.episode_len under DSRL's keys, plus `valid` [T] (False once
+    the episode has ended; those steps are padding)."""
+    k_reset, k_act = jax.random.split(key)
+
+    def body(carry, k):
+        s, alive = carry
+        a = act(s, k)
+        s2 = env.step(s, a)
+        out = dict(observations=s.obs, next_observations=s2.obs, actions=a, rewards=s2.reward,
+                   costs=s2.cost, terminals=s2.terminated, timeouts=s2.truncated & ~s2.terminated,
+                   valid=alive)
+        return (s2, alive & ~s2.done), out
+
+    init = (env.reset(k_reset), jnp.array(True))
+    _, traj = jax.lax.scan(body, init, jax.random.split(k_act, env.episode_len))
+    return traj
 
 
 def time_limit(t: jax.Array, episode_len: int) -> jax.Array:

@@ -23,7 +23,7 @@ import chex
 import jax
 import jax.numpy as jnp
 
-from r2pac_jax.envs.base import EnvState, JaxEnv
+from r2pac_jax.envs.base import EnvState, JaxEnv, record_episode
 
 START = (-1.2, 0.0)
 START_NOISE = (0.1, 0.15)  # uniform half-widths in x, y
@@ -155,17 +155,4 @@ def scripted_action(b: Behaviour, state: EnvState, key: jax.Array) -> jax.Array:
 
 def rollout_behaviour(env: ReachAvoidEnv, b: Behaviour, key: jax.Array):
     """One episode of a scripted behaviour: per-step arrays of length T plus a valid mask."""
-    k_reset, k_act = jax.random.split(key)
-    s0 = env.reset(k_reset)
-
-    def body(carry, k):
-        s, alive = carry
-        a = scripted_action(b, s, k)
-        s2 = env.step(s, a)
-        out = dict(observations=s.obs, next_observations=s2.obs, actions=a, rewards=s2.reward,
-                   costs=s2.cost, terminals=s2.terminated, timeouts=s2.truncated & ~s2.terminated,
-                   valid=alive)
-        return (s2, alive & ~s2.done), out
-
-    _, traj = jax.lax.scan(body, (s0, jnp.array(True)), jax.random.split(k_act, env.episode_len))
-    return traj
+    return record_episode(env, lambda s, k: scripted_action(b, s, k), key)

@@ -107,11 +107,7 @@ def find_cached(task: TaskSpec) -> Optional[Path]:
 
 
 def default_trajectories(task: TaskSpec) -> int:
-    src = _sources().get(task.name)
-    if src is None:
-        raise FactoryError(f"no data source for task {task.name!r} yet; tasks with one: "
-                           f"{', '.join(sorted(_sources()))}")
-    return src["default_trajectories"]
+    return _source(task, "scripted")["default_trajectories"]
 
 
 def make_card(task: TaskSpec, ds: Dataset, seed: int, trajectories: int, source: str) -> dict:

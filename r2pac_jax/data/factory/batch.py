@@ -1,4 +1,5 @@
-"""Batched episode recording shared by the MuJoCo data sources (navigation, velocity).
+"""Episode recording shared by the data sources: the batched C-MuJoCo recorder (navigation,
+velocity) and the flattening of JAX-recorded episodes (ReachAvoid, PPO-Lagrangian).
 
 A source supplies only its behaviour (`act`); stepping the batch, recording DSRL's arrays,
 masking finished episodes, progress reporting and splitting a request into equal batches live
@@ -67,6 +68,15 @@ def record_episodes(env, state, act: Callable[[int, object], np.ndarray], steps:
     rec["timeouts"][-1] = rec["timeouts"][-1] | alive  # still running: cut short by `steps`
     mask = np.stack(valid, 1)  # [n, T]
     return {k: np.stack(v, 1)[mask] for k, v in rec.items()}  # [n, T, ...] -> real steps
+
+
+def keep_valid_steps(traj: dict) -> dict:
+    """Episodes recorded by `envs.base.record_episode` (leaves [..., T, ...] with a `valid`
+    mask [..., T]) -> DSRL arrays of the real steps only, episode-major."""
+    traj = jax.tree_util.tree_map(np.asarray, traj)
+    valid = traj.pop("valid")
+    lead = valid.ndim
+    return {k: v.reshape((-1,) + v.shape[lead:])[valid.reshape(-1)] for k, v in traj.items()}
 
 
 def in_equal_batches(n: int, batch: int, run: Callable[[int, int], dict]) -> dict:

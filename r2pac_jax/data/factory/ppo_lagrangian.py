@@ -25,6 +25,10 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from r2pac_jax.data.factory.batch import keep_valid_steps
+from r2pac_jax.data.factory.thinning import select_episodes
+from r2pac_jax.envs.base import record_episode
+
 
 @dataclasses.dataclass(frozen=True)
 class PPOLagConfig:
@@ -136,9 +140,14 @@ def make_train(env, cfg: PPOLagConfig) -> Callable:
             ep_ret, ep_cost = ep_ret + s2.reward, ep_cost + s2.cost
             vr, vc = critics.apply(params["critics"], s.obs)
             nvr, nvc = critics.apply(params["critics"], s2.obs)
-            fresh = v_reset(jax.random.split(k_r, N))
-            pick = lambda f, o: jnp.where(done.reshape(done.shape + (1,) * (f.ndim - 1)), f, o)  # noqa: E731
-            s_next = jax.tree_util.tree_map(pick, fresh, s2)
+
+            def reset_ended(s2):  # only when an episode ended: a reset is costly on MJX
+                fresh = v_reset(jax.random.split(k_r, N))
+                pick = lambda f, o: jnp.where(  # noqa: E731
+                    done.reshape(done.shape + (1,) * (f.ndim - 1)), f, o)
+                return jax.tree_util.tree_map(pick, fresh, s2)
+
+            s_next = jax.lax.cond(done.any(), reset_ended, lambda s2: s2, s2)
             out = dict(obs=s.obs, raw=raw, logp=_log_prob(mean, log_std, raw), r=s2.reward,
                        c=s2.cost, term=s2.terminated.astype(jnp.float32),
                        done=done.astype(jnp.float32), vr=vr, vc=vc, nvr=nvr, nvc=nvc,
@@ -218,41 +227,27 @@ def record(env, actor: Actor, snaps, episodes_per_snapshot: int, key) -> dict:
     E = episodes_per_snapshot
 
     def episode(p, k):
-        k_reset, k_act = jax.random.split(k)
-        s0 = env.reset(k_reset)
-
-        def body(c, k):
-            s, alive = c
+        def act(s, k):
             mean, log_std = actor.apply(p, s.obs)
-            a = jnp.clip(mean + jnp.exp(log_std) * jax.random.normal(k, mean.shape), -1.0, 1.0)
-            s2 = env.step(s, a)
-            out = dict(observations=s.obs, next_observations=s2.obs, actions=a,
-                       rewards=s2.reward, costs=s2.cost, terminals=s2.terminated,
-                       timeouts=s2.truncated & ~s2.terminated, valid=alive)
-            return (s2, alive & ~(s2.terminated | s2.truncated)), out
+            return jnp.clip(mean + jnp.exp(log_std) * jax.random.normal(k, mean.shape), -1.0, 1.0)
 
-        _, tr = jax.lax.scan(body, (s0, jnp.array(True)), jax.random.split(k_act, env.episode_len))
-        return tr
+        return record_episode(env, act, k)
 
     per_snap = jax.vmap(episode, in_axes=(None, 0))
     run = jax.jit(jax.vmap(per_snap, in_axes=(0, 0)))
     keys = jax.random.split(key, S * E).reshape(S, E, -1)
-    tr = jax.tree_util.tree_map(np.asarray, run(snaps, keys))  # [S, E, L, ...]
-    valid = tr.pop("valid").reshape(-1)
-    out = {k: v.reshape((-1,) + v.shape[3:])[valid] for k, v in tr.items()}
-    # an episode still running at episode_len ends in a time-limit cut
-    return out
+    return keep_valid_steps(run(snaps, keys))  # [S, E, T, ...] -> real steps
 
 
 def generate(task, n_trajectories: int, seed: int, physics: str = "auto",
              cfg: Optional[PPOLagConfig] = None, progress=None, log=print) -> dict:
     """Train PPO-Lagrangian on `task`'s JAX environment and record `n_trajectories` episodes
     with its snapshots (DSRL arrays). The limits default to 4 kappa -> kappa / 2."""
-    if physics == "mujoco":
-        raise ValueError("PPO-Lagrangian needs a JAX environment: physics 'mujoco' (C MuJoCo) "
-                         "steps outside JAX; use physics 'mjx' on an accelerator")
-    env = task.make_env(physics="auto" if task.family == "demo" else
-                        ("mjx" if physics == "auto" else physics))
+    if task.family == "demo":
+        physics = "auto"  # pure JAX: there is no backend to choose
+    elif physics == "auto":
+        physics = "mjx"  # auto would pick C MuJoCo on a CPU, which make_train refuses
+    env = task.make_env(physics=physics)
     cfg = cfg or PPOLagConfig(limit_start=4.0 * task.kappa, limit_end=0.5 * task.kappa)
     E = -(-n_trajectories // cfg.snapshots)
     train = make_train(env, cfg)
@@ -264,8 +259,6 @@ def generate(task, n_trajectories: int, seed: int, physics: str = "auto",
         f"cost {m['episode_cost'][0]:.1f} -> {m['episode_cost'][-1]:.1f} (limit "
         f"{cfg.limit_start:g} -> {cfg.limit_end:g}), multiplier -> {m['lagrange'][-1]:.2f}")
     arrays = record(env, train.actor, snaps, E, k_rec)
-    from r2pac_jax.data.factory.thinning import select_episodes
-
     arrays = select_episodes(arrays, np.arange(n_trajectories))
     if progress is not None:
         progress(n_trajectories)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import jax
 import numpy as np
 
+from r2pac_jax.data.factory.batch import keep_valid_steps
 from r2pac_jax.envs import reach_avoid as ra
 
 DEFAULT_TRAJECTORIES = 600
@@ -24,9 +25,7 @@ def generate(n_trajectories: int, seed: int, progress=None) -> dict:
     parts = []
     batch = 200
     for i in range(0, n_trajectories, batch):
-        traj = jax.tree_util.tree_map(np.asarray, one_batch(keys[i:i + batch]))
-        valid = traj.pop("valid").reshape(-1)
-        parts.append({k: v.reshape((-1,) + v.shape[2:])[valid] for k, v in traj.items()})
+        parts.append(keep_valid_steps(one_batch(keys[i:i + batch])))
         if progress is not None:
             progress(min(batch, n_trajectories - i))
     out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
