@@ -63,11 +63,16 @@ def verdict(row: dict) -> str:
 
 
 def report(out: Path, tasks: list[str]) -> str:
+    """Table of every task with a finished run under `out` (not only `tasks`, so runs made
+    task by task over several invocations accumulate), in registry order."""
     from r2pac_jax.io import atomic_write_text
     from r2pac_jax.report import results_table
+    from r2pac_jax.tasks import TASKS
 
+    on_disk = {p.name for p in out.iterdir() if p.is_dir()} if out.is_dir() else set()
+    order = list(TASKS) + sorted(on_disk - set(TASKS))
     cells: dict[str, dict] = {}
-    for task in tasks:
+    for task in [t for t in order if t in on_disk or t in tasks]:
         row = {}
         for algo in ALGOS:
             f = out / task / algo / "results.json"

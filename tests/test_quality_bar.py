@@ -1,0 +1,58 @@
+"""The quality-bar script's verdict and its accumulating report (issue 5)."""
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "experiments" / "data_factory" / "quality_bar.py"
+
+
+@pytest.fixture(scope="module")
+def qb():
+    spec = importlib.util.spec_from_file_location("quality_bar", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _res(reward, cost):
+    return {"normalized_reward": {"mean": reward, "std": 0.0, "per_seed": [reward]},
+            "normalized_cost": {"mean": cost, "std": 0.0, "per_seed": [cost]}}
+
+
+@pytest.mark.parametrize("r2pac,bc_safe,expected", [
+    ((0.5, 0.2), (0.3, 0.5), "pass"),
+    ((0.5, 1.0), (0.3, 0.5), "fail: r2pac unsafe"),  # cost 1 is not < 1
+    ((0.3, 0.2), (0.3, 0.5), "fail: r2pac reward <= bc-safe"),
+    ((0.1, 3.0), (0.3, 5.0), "fail: r2pac unsafe, r2pac reward <= bc-safe"),
+])
+def test_verdict(qb, r2pac, bc_safe, expected):
+    assert qb.verdict({"r2pac": _res(*r2pac), "bc-safe": _res(*bc_safe)}) == expected
+
+
+def test_verdict_incomplete_without_bc_safe(qb):
+    assert qb.verdict({"r2pac": _res(0.5, 0.1)}) == "incomplete"
+
+
+def test_report_accumulates_tasks_run_separately(qb, tmp_path):
+    for task, algo, r, c in [("HopperVelocity", "r2pac", 0.4, 0.1),
+                             ("HopperVelocity", "bc-safe", 0.3, 0.5),
+                             ("SwimmerVelocity", "r2pac", 0.1, 2.0),
+                             ("SwimmerVelocity", "bc-safe", 0.0, 4.0)]:
+        d = tmp_path / task / algo
+        d.mkdir(parents=True)
+        (d / "results.json").write_text(json.dumps(_res(r, c)))
+    # asked about one task only: the other finished one stays in the table
+    text = qb.report(tmp_path, ["SwimmerVelocity"])
+    assert "| HopperVelocity | pass |" in text
+    assert "| SwimmerVelocity | fail: r2pac unsafe |" in text
+    assert (tmp_path / "quality_bar.md").read_text() == text
+    # rows follow the task registry, not the order of the runs
+    from r2pac_jax.tasks import TASKS
+    order = [t for t in TASKS if t in ("HopperVelocity", "SwimmerVelocity")]
+    assert text.index(f"| {order[0]} | ") < text.index(f"| {order[1]} | ")
+
+
+def test_report_without_runs(qb, tmp_path):
+    assert qb.report(tmp_path / "missing", ["HopperVelocity"]) == "no finished run yet"
