@@ -162,3 +162,30 @@ def test_ray_launcher_on_a_local_instance(tmp_path, data_dir):
     cells = sw.finished_cells(out)
     assert len(cells) == 2 and all("normalized_reward" in c for c in cells.values())
     assert (out / "table.md").exists()
+
+
+@pytest.mark.slow
+def test_sweep_on_a_mujoco_task_via_task_override(tmp_path, data_dir):
+    """The ReachAvoid grid file run on HopperVelocity with `--task` (C MuJoCo evaluation of
+    full 1,000-step episodes), killed after its first group and restarted. Slow: run with
+    -m slow."""
+    from r2pac_jax.data.factory import generate_dataset
+    from r2pac_jax.tasks import get_task
+
+    generate_dataset(get_task("HopperVelocity"), trajectories=10, seed=0, plot=False)
+    body = ('task = "ReachAvoid"\nseeds = 1\neval_episodes = 2\npreset = "quick"\n' + TINY_CONFIG
+            + "\n[grid]\nquantile_alpha = [0.5, 0.9]\nchunk_len = [1, 3]\n")
+    p = _write(tmp_path, body)
+    s = sw.load_sweep(p, task_override="HopperVelocity")
+    out = tmp_path / "hopper"
+    sw.run_group(s, s.groups[0], out, log=lambda m: None, progress=False)  # then "killed"
+    assert len(sw.finished_cells(out)) == 2
+    assert sw.main([str(p), "--out", str(out), "--task", "HopperVelocity", "--no-progress"]) == 0
+    cells = sw.finished_cells(out)
+    assert len(cells) == 4
+    for c in cells.values():
+        assert c["task"] == "HopperVelocity"
+        assert c["episodes"] == 2 and len(c["returns"]) == 1 and len(c["returns"][0]) == 2
+        assert all(0 < n <= 1000 for n in c["lengths"][0])
+        assert c["safe"] == (c["normalized_cost"]["mean"] < 1.0)
+    assert (out / "table.md").read_text().count("| HopperVelocity | r2pac |") == 4
