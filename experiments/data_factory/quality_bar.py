@@ -62,17 +62,16 @@ def verdict(row: dict) -> str:
     return "pass" if not problems else "fail: " + ", ".join(problems)
 
 
-def report(out: Path, tasks: list[str]) -> str:
-    """Table of every task with a finished run under `out` (not only `tasks`, so runs made
-    task by task over several invocations accumulate), in registry order."""
+def report(out: Path) -> str:
+    """Table of every task with a finished run under `out` (runs made task by task over
+    several invocations accumulate), in registry order."""
     from r2pac_jax.io import atomic_write_text
     from r2pac_jax.report import results_table
     from r2pac_jax.tasks import TASKS
 
     on_disk = {p.name for p in out.iterdir() if p.is_dir()} if out.is_dir() else set()
-    order = list(TASKS) + sorted(on_disk - set(TASKS))
     cells: dict[str, dict] = {}
-    for task in [t for t in order if t in on_disk or t in tasks]:
+    for task in [t for t in TASKS if t in on_disk] + sorted(on_disk - set(TASKS)):
         row = {}
         for algo in ALGOS:
             f = out / task / algo / "results.json"
@@ -108,8 +107,8 @@ def main() -> int:
         for task in tasks:
             for algo in ALGOS:
                 run_one(task, algo, out, args.seeds, args.eval_every, args.physics)
-            print(report(out, tasks), flush=True)
-    print(report(out, tasks))
+            print(report(out), flush=True)
+    print(report(out))
     return 0
 
 
