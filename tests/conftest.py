@@ -1,6 +1,15 @@
+import atexit
 import os
+import shutil
+import tempfile
 
 os.environ.setdefault("R2PAC_NO_TENSORBOARD", "1")
+# Tests never touch the user's dataset caches (a CLI test that makes data would otherwise leave
+# it in ~/.cache): one throwaway cache per test session, inherited by subprocesses.
+_CACHE = tempfile.mkdtemp(prefix="r2pac-test-cache-")
+atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
+os.environ["R2PAC_DATA_DIR"] = os.path.join(_CACHE, "gen")
+os.environ["DSRL_DATASET_DIR"] = os.path.join(_CACHE, "dsrl")
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
 import jax  # noqa: E402

@@ -56,3 +56,28 @@ def test_report_accumulates_tasks_run_separately(qb, tmp_path):
 
 def test_report_without_runs(qb, tmp_path):
     assert qb.report(tmp_path / "missing") == "no finished run yet"
+
+
+def test_archive_copies_a_finished_task_and_report_reads_the_archive(qb, tmp_path):
+    runs, dest = tmp_path / "runs", tmp_path / "archive"
+    card = tmp_path / "data" / "CarGoal2-generated-s0-n120.json"
+    card.parent.mkdir()
+    card.write_text('{"task": "CarGoal2"}')
+    for algo, r, c in [("r2pac", 0.4, 0.2), ("bc-all", 0.6, 3.0), ("bc-safe", 0.3, 0.5)]:
+        d = runs / "CarGoal2" / algo
+        d.mkdir(parents=True)
+        (d / "results.json").write_text(json.dumps(
+            {**_res(r, c), "dataset": str(card.with_suffix(".hdf5"))}))
+    # an unfinished task (no bc-safe yet) is not archived
+    (runs / "PointGoal1" / "r2pac").mkdir(parents=True)
+    (runs / "PointGoal1" / "r2pac" / "results.json").write_text(json.dumps(_res(0.1, 0.1)))
+    assert qb.archive(runs, "PointGoal1", dest) == []
+    written = qb.archive(runs, "CarGoal2", dest)
+    assert sorted(p.name for p in written) == [
+        "CarGoal2-generated-s0-n120.json", "bc-all.json", "bc-safe.json", "r2pac.json"]
+    assert json.loads((dest / "CarGoal2" / "bc-all.json").read_text())[
+        "normalized_cost"]["mean"] == 3.0
+    # the archive alone gives the same verdicts as the run folder
+    assert "| CarGoal2 | pass |" in qb.report(dest)
+    assert "| CarGoal2 | pass |" in qb.report(runs)
+    assert "PointGoal1" not in qb.report(dest)

@@ -3,7 +3,7 @@
 
     python experiments/data_factory/quality_bar.py [--tasks CarGoal2,SwimmerVelocity,...]
         [--out runs/quality_bar] [--seeds 3] [--eval-every 20000] [--physics auto|mujoco|mjx]
-        [--report-only]
+        [--report-only] [--archive experiments/data_factory/results]
 
 Each (task, algo) is one `python -m r2pac_jax.train` run in OUT/TASK/ALGO; a finished run
 (results.json present) is skipped, an interrupted one resumes from its checkpoint, so the
@@ -11,11 +11,16 @@ experiment can be stopped and restarted task by task. Data come from the cache
 (`python -m r2pac_jax.data make --task TASK`), generated on first use. The table (paper format,
 r2pac / bc-all / bc-safe per task, with the verdict) goes to OUT/quality_bar.md; the command,
 machine and date belong beside it in experiments/data_factory/QUALITY_BAR.md.
+
+`--archive DIR` copies each finished task's results into DIR/TASK/ALGO.json, with its dataset's
+card and composition plot, for committing; `report` reads that layout too, so
+`--report-only --out experiments/data_factory/results` gives the table of every archived task.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -62,6 +67,39 @@ def verdict(row: dict) -> str:
     return "pass" if not problems else "fail: " + ", ".join(problems)
 
 
+def _result_file(out: Path, task: str, algo: str) -> Path | None:
+    """A run's results: a run directory's `results.json`, or an archived `ALGO.json`."""
+    for f in (out / task / algo / "results.json", out / task / f"{algo}.json"):
+        if f.exists():
+            return f
+    return None
+
+
+def archive(out: Path, task: str, dest: Path) -> list[Path]:
+    """Copy a task's finished results (and its dataset's card and plot) from the run folder
+    `out` into `dest/TASK/`, atomically; returns the files written (none if unfinished)."""
+    from r2pac_jax.io import atomic_path
+
+    def copy(src: Path, target: Path) -> Path:
+        with atomic_path(target) as tmp:
+            shutil.copyfile(src, tmp)
+        return target
+
+    files = {algo: _result_file(out, task, algo) for algo in ALGOS}
+    if any(f is None for f in files.values()):
+        return []
+    written = []
+    for algo, f in files.items():
+        target = dest / task / f"{algo}.json"
+        if f.resolve() != target.resolve():
+            written.append(copy(f, target))
+    dataset = Path(json.loads(files["r2pac"].read_text()).get("dataset", ""))
+    for side in (dataset.with_suffix(".json"), dataset.with_suffix(".png")):
+        if side.is_file():
+            written.append(copy(side, dest / task / side.name))
+    return written
+
+
 def report(out: Path) -> str:
     """Table of every task with a finished run under `out` (runs made task by task over
     several invocations accumulate), in registry order."""
@@ -74,8 +112,8 @@ def report(out: Path) -> str:
     for task in [t for t in TASKS if t in on_disk] + sorted(on_disk - set(TASKS)):
         row = {}
         for algo in ALGOS:
-            f = out / task / algo / "results.json"
-            if f.exists():
+            f = _result_file(out, task, algo)
+            if f is not None:
                 row[algo] = json.loads(f.read_text())
         if row:
             cells[task] = row
@@ -100,6 +138,9 @@ def main() -> int:
                     help="evaluation physics; on a GPU machine `mujoco` (C MuJoCo on its CPU "
                          "cores) beats MJX for the navigation tasks (benchmarks/RESULTS.md)")
     ap.add_argument("--report-only", action="store_true")
+    ap.add_argument("--archive", default=None, metavar="DIR",
+                    help="copy each finished task's results, dataset card and plot into "
+                         "DIR/TASK/ (e.g. experiments/data_factory/results)")
     args = ap.parse_args()
     tasks = args.tasks.split(",") if args.tasks else default_tasks()
     out = Path(args.out)
@@ -108,6 +149,10 @@ def main() -> int:
             for algo in ALGOS:
                 run_one(task, algo, out, args.seeds, args.eval_every, args.physics)
             print(report(out), flush=True)
+    if args.archive:
+        for task in tasks:
+            for f in archive(out, task, Path(args.archive)):
+                print(f"archived {f}")
     print(report(out))
     return 0
 
