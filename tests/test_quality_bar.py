@@ -81,3 +81,15 @@ def test_archive_copies_a_finished_task_and_report_reads_the_archive(qb, tmp_pat
     assert "| CarGoal2 | pass |" in qb.report(dest)
     assert "| CarGoal2 | pass |" in qb.report(runs)
     assert "PointGoal1" not in qb.report(dest)
+
+
+def test_details_lists_per_seed_values_and_cost_free_episodes(qb, tmp_path):
+    d = tmp_path / "PointGoal1" / "r2pac"
+    d.mkdir(parents=True)
+    res = {"normalized_reward": {"mean": 0.2, "std": 0.1, "per_seed": [0.1, 0.3]},
+           "normalized_cost": {"mean": 1.5, "std": 1.0, "per_seed": [0.5, 2.5]},
+           "costs": [[0.0, 0.0, 12.0], [40.0, 0.0, 3.0]], "wall_time_s": 61.4}
+    (d / "results.json").write_text(json.dumps(res))
+    rows = qb.details(tmp_path, "PointGoal1").splitlines()
+    assert len(rows) == 3  # header, separator, r2pac only (no baseline has finished)
+    assert rows[2] == "| r2pac | 0.20 ± 0.10 | 1.50 ± 1.00 | 0.10 0.30 | 0.50 2.50 | 50% | 61 |"

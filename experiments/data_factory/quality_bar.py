@@ -100,6 +100,28 @@ def archive(out: Path, task: str, dest: Path) -> list[Path]:
     return written
 
 
+def details(out: Path, task: str) -> str:
+    """Per-seed markdown rows of one task's finished runs: what the mean table hides (which
+    seeds are unsafe, how many episodes cost nothing, how long each run took)."""
+    import numpy as np
+
+    lines = ["| algo | reward | cost | per-seed reward | per-seed cost | episodes with cost 0 "
+             "| wall s |", "|---|---|---|---|---|---|---|"]
+    for algo in ALGOS:
+        f = _result_file(out, task, algo)
+        if f is None:
+            continue
+        r = json.loads(f.read_text())
+        nr, nc = r["normalized_reward"], r["normalized_cost"]
+        zero = float(np.mean(np.asarray(r["costs"]) == 0)) if "costs" in r else float("nan")
+        lines.append(
+            f"| {algo} | {nr['mean']:.2f} ± {nr['std']:.2f} | {nc['mean']:.2f} ± {nc['std']:.2f} "
+            f"| {' '.join(f'{x:.2f}' for x in nr['per_seed'])} "
+            f"| {' '.join(f'{x:.2f}' for x in nc['per_seed'])} | {zero:.0%} "
+            f"| {r.get('wall_time_s', float('nan')):.0f} |")
+    return "\n".join(lines) + "\n"
+
+
 def report(out: Path) -> str:
     """Table of every task with a finished run under `out` (runs made task by task over
     several invocations accumulate), in registry order."""
@@ -138,6 +160,8 @@ def main() -> int:
                     help="evaluation physics; on a GPU machine `mujoco` (C MuJoCo on its CPU "
                          "cores) beats MJX for the navigation tasks (benchmarks/RESULTS.md)")
     ap.add_argument("--report-only", action="store_true")
+    ap.add_argument("--details", action="store_true",
+                    help="also print per-seed rows of each task in --tasks")
     ap.add_argument("--archive", default=None, metavar="DIR",
                     help="copy each finished task's results, dataset card and plot into "
                          "DIR/TASK/ (e.g. experiments/data_factory/results)")
@@ -154,6 +178,9 @@ def main() -> int:
             for f in archive(out, task, Path(args.archive)):
                 print(f"archived {f}")
     print(report(out))
+    if args.details:
+        for task in tasks:
+            print(f"\n{task}\n\n{details(out, task)}")
     return 0
 
 
