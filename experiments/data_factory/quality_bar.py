@@ -3,7 +3,7 @@
 
     python experiments/data_factory/quality_bar.py [--tasks CarGoal2,SwimmerVelocity,...]
         [--out runs/quality_bar] [--seeds 3] [--eval-every 20000] [--physics auto|mujoco|mjx]
-        [--report-only] [--archive experiments/data_factory/results]
+        [--report-only] [--details] [--archive experiments/data_factory/results]
 
 Each (task, algo) is one `python -m r2pac_jax.train` run in OUT/TASK/ALGO; a finished run
 (results.json present) is skipped, an interrupted one resumes from its checkpoint, so the
