@@ -83,12 +83,12 @@ def emit(rec: dict, out: str | None):
 
 def r2pac_policy(task):
     """The quick-preset R2PAC policy with random initial parameters: (act, params)."""
-    from r2pac_jax.agents.r2pac import Agent
-    from r2pac_jax.config import HParams, make_config
+    from r2pac_jax.agents import make_agent
+    from r2pac_jax.config import default_hparams, make_config
 
     cfg = make_config(task, "r2pac", "quick")
-    agent = Agent(cfg, task.obs_dim, task.act_dim)
-    hp = HParams.from_config(cfg)
+    agent = make_agent(cfg, task.obs_dim, task.act_dim)
+    hp = default_hparams(cfg)
     pp = agent.policy_params(agent.init(jax.random.PRNGKey(0), hp), hp)
     desc = (f"R2PAC quick ({cfg.actor}, {len(cfg.hidden_dims)}x{cfg.hidden_dims[0]}, "
             f"{cfg.num_candidates} candidates x {cfg.flow_steps} Euler steps, h={cfg.chunk_len})")

@@ -18,7 +18,7 @@ import time
 import jax
 import jax.numpy as jnp
 
-from r2pac_jax.config import HParams, make_config
+from r2pac_jax.config import make_config
 from r2pac_jax.data import load_task_dataset
 from r2pac_jax.tasks import get_task
 from r2pac_jax.train import chunk_dataset, make_train
@@ -40,7 +40,8 @@ def main():
     train = make_train(cfg, data, task.obs_dim, task.act_dim)
     alphas = jnp.linspace(0.5, 0.95, args.cells)
     L = args.cells * args.seeds
-    hp = HParams(jnp.repeat(alphas, args.seeds), jnp.ones(L), jnp.full(L, 2.0))
+    hp = dict(quantile_alpha=jnp.repeat(alphas, args.seeds), penalty_c=jnp.ones(L),
+              guidance_scale=jnp.full(L, 2.0))
     keys = jnp.stack([jax.random.PRNGKey(s) for _ in range(args.cells) for s in range(args.seeds)])
 
     def timed(fn):

@@ -19,8 +19,9 @@ import numpy as np
 from r2pac_jax.config import make_config
 from r2pac_jax.data import load_task_dataset
 from r2pac_jax.tasks import get_task
-from r2pac_jax.train import Lanes, chunk_dataset, make_block
-from r2pac_jax.agents.r2pac import Agent
+from r2pac_jax.agents import make_agent
+from r2pac_jax.lanes import Lanes
+from r2pac_jax.loop import make_block, make_data
 
 
 def measure(preset: str, seeds: int, phase: str, blocks: int, block_steps: int, overrides=None):
@@ -30,8 +31,8 @@ def measure(preset: str, seeds: int, phase: str, blocks: int, block_steps: int, 
                                                   checkpoint_every=block_steps, steps=block_steps,
                                                   **(overrides or {})))
     ds = load_task_dataset(task, announce=lambda m: None)
-    data = chunk_dataset(cfg, task, ds)
-    agent = Agent(cfg, task.obs_dim, task.act_dim)
+    data = make_data(cfg, task, ds)
+    agent = make_agent(cfg, task.obs_dim, task.act_dim)
     lanes = Lanes.build(cfg, list(range(seeds)))
     init = jax.jit(jax.vmap(agent.init))
     state = init(jax.numpy.stack([jax.random.PRNGKey(s) for s in range(seeds)]), lanes.hp)

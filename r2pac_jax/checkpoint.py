@@ -40,3 +40,41 @@ class Checkpointer:
 
     def close(self) -> None:
         self._mgr.close()
+
+
+def save_policy(directory, step: int, pp: Any, meta: dict) -> None:
+    """The final policy parameters of every lane ([L, ...] leaves): what `load_policy` reads.
+
+    A resumed finished run already saved this very policy at `step`, and keeps it."""
+    pol = Checkpointer(directory, max_to_keep=1)
+    try:
+        if pol.latest_step() != step:
+            pol.save(step, pp, meta)
+    finally:
+        pol.close()
+
+
+def policy_like(agent, lanes: int):
+    """Shapes and dtypes of `lanes` lanes' policy parameters (the restore target)."""
+    import jax.numpy as jnp
+
+    from r2pac_jax.config import default_hparams
+
+    hp = default_hparams(agent.cfg)
+    hp_l = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (lanes,)), hp)
+    return jax.eval_shape(lambda k: jax.vmap(agent.policy_params)(
+        jax.vmap(agent.init)(k, hp_l), hp_l), jnp.zeros((lanes, 2), jnp.uint32))
+
+
+def restore_policy(directory, agent, lanes: int) -> Any:
+    """The saved policy parameters of a finished run ([L, ...] leaves)."""
+    pol = Checkpointer(directory, max_to_keep=1)
+    try:
+        step = pol.latest_step()
+        if step is None:
+            raise FileNotFoundError(f"{directory} holds no saved policy (it is written when "
+                                    "training ends)")
+        pp, _ = pol.restore(step, policy_like(agent, lanes))
+    finally:
+        pol.close()
+    return pp

@@ -1,17 +1,19 @@
-"""Configuration: one frozen dataclass, the presets and the algorithm variants.
+"""Configuration of a run: the generic part every algorithm shares, and its algorithm's own part.
 
-Per-task values (quantile alpha, penalty C, chunk length h, reward and cost scale) come from the
-task registry (`tasks.py`, the paper's Table 4); the presets give everything else (Table 3 for
-`paper`; small nets and few steps for `quick`). Variants are config values that switch small
-pure pieces of the agent, never separate training loops.
+`Config` holds what the training loop, the data view, evaluation and checkpoints need (task,
+steps, batch, chunk length, seeds, periods); `Config.agent` is the algorithm's own frozen
+dataclass, defined beside the algorithm in `agents/<module>.py` with its presets and variants.
+Users see one flat namespace of keys (`--set quantile_alpha=0.8`, sweep files, `make_config`
+overrides); `cfg.quantile_alpha` reads through to `cfg.agent`.
+
+Values are resolved in this order: defaults, the task's values (the paper's Table 4), the preset
+(generic, then the algorithm's), the algorithm variant's switches, explicit overrides.
 """
 from __future__ import annotations
 
 import dataclasses
 import json
-from typing import Any, NamedTuple, Optional
-
-import jax.numpy as jnp
+from typing import Any, Optional
 
 from r2pac_jax.tasks import TaskSpec, get_task
 
@@ -25,109 +27,98 @@ class Config:
     task: str
     algo: str = "r2pac"
     preset: str = "quick"
-    # optimisation
-    steps: int = 20_000  # per phase (critic phase, then policy phase) for two_phase
+    # optimisation loop
+    steps: int = 20_000  # per phase (R2PAC's two_phase schedule has two)
     batch_size: int = 256
-    lr: float = 3e-4
-    hidden_dims: tuple = (128, 128, 128)
-    actor_hidden_dims: tuple = (128, 128, 128)  # the AWR Gaussian actor: a 3-layer MLP
-    layer_norm: bool = False
-    schedule: str = "two_phase"  # two_phase | joint
-    # IQL critics
-    discount: float = 0.99
-    expectile: float = 0.9
-    polyak: float = 0.005
-    num_critics: int = 2
+    threshold_every: int = 1000  # the block: steps per compiled scan, metrics per block
+    # data view
     chunk_len: int = 5
+    discount: float = 0.99
     reward_scale: float = 1.0
     cost_scale: float = 1.0
-    # safety threshold and penalty
-    quantile_alpha: float = 0.9
-    penalty_c: float = 1.0
-    penalty_mode: str = "absorbing"  # absorbing: target -C/(1-g); direct: target -C
-    threshold_source: str = "dataset"  # dataset | batch
-    threshold_every: int = 1000  # also the block: steps per compiled scan, metrics per block
-    threshold_subset: int = 65536
-    # policy
-    guidance_scale: float = 2.0
-    cfg_dropout: float = 0.1
-    flow_steps: int = 32
-    num_candidates: int = 16
-    selection: str = "min_qc"  # min_qc | safe_then_reward | first
-    awr_temperature: float = 6.0
-    awr_clip: float = 100.0
-    time_embed_dim: int = 16
-    # variant switches (set by `algo`, see ALGOS)
-    actor: str = "cfg_flow"  # cfg_flow | awr_flow | bc_flow | awr_gaussian | bc_gaussian
-    reward_penalty: bool = True  # False: "w/o Vbar_r" (unpenalised V_r in safe states)
-    unsafe_branch: bool = True  # False: "w/o V_c" (reward advantage labels everywhere)
-    cost_critic: str = "discounted"  # discounted | hj (feasibility, Eq. 42)
-    data_filter: str = "all"  # all | safe (BC-safe: episodes with cost <= kappa)
-    train_critics: bool = True
+    data_filter: str = "all"  # all | safe (episodes with cost <= kappa)
     # run
     seeds: int = 3
     eval_every: int = 5_000
     eval_episodes: int = 20
     checkpoint_every: int = 5_000
+    agent: Any = None  # the algorithm's config (agents/<module>.py)
+
+    def __getattr__(self, name: str):
+        # the flat view: cfg.quantile_alpha is cfg.agent.quantile_alpha
+        agent = self.__dict__.get("agent")
+        if not name.startswith("__") and agent is not None and name in _names(type(agent)):
+            return getattr(agent, name)
+        raise AttributeError(f"{type(self).__name__} of {self.__dict__.get('algo')!r} has no "
+                             f"key {name!r}")
 
     # ---- derived -------------------------------------------------------------------------
     @property
     def phases(self) -> tuple[str, ...]:
-        if not self.train_critics:
-            return ("actor",)
-        return ("critic", "actor") if self.schedule == "two_phase" else ("joint",)
+        from r2pac_jax.agents import algo_module
+
+        return algo_module(self.algo).phases(self.agent)
 
     @property
     def total_steps(self) -> int:
         return self.steps * len(self.phases)
+
+    def flat(self) -> dict:
+        """Every key of the flat namespace with its value (generic and the algorithm's)."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "agent"}
+        out.update(dataclasses.asdict(self.agent))
+        return out
+
+    def replace(self, **values) -> "Config":
+        """A copy with flat-namespace keys changed (generic or the algorithm's), validated."""
+        gen = {k: v for k, v in values.items() if k in GENERIC_KEYS}
+        own = {k: v for k, v in values.items() if k not in GENERIC_KEYS}
+        unknown = set(own) - _names(type(self.agent))
+        if unknown:
+            raise ConfigError(f"{self.algo} has no config key(s) {sorted(unknown)}; its keys: "
+                              f"{', '.join(sorted(field_types(self.algo)))}")
+        new = dataclasses.replace(self, agent=dataclasses.replace(self.agent, **own), **gen)
+        validate_config(new)
+        return new
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
 
     @staticmethod
     def from_dict(d: dict) -> "Config":
+        """From `to_json`'s layout, or the flat layout of runs made before the agent protocol."""
+        from r2pac_jax.agents import algo_module
+
         d = dict(d)
-        for k in ("hidden_dims", "actor_hidden_dims"):
-            if k in d:
-                d[k] = tuple(d[k])
-        return Config(**d)
+        cls = algo_module(d.get("algo", "r2pac")).CONFIG
+        own = d.pop("agent", None)
+        if own is None:  # flat: the algorithm's keys sit beside the generic ones
+            own = {k: d[k] for k in _names(cls) if k in d}
+        own = {k: tuple(v) if isinstance(v, list) else v for k, v in own.items()
+               if k in _names(cls)}
+        gen = {k: v for k, v in d.items() if k in GENERIC_KEYS}
+        return Config(**gen, agent=cls(**own))
 
 
-# The algorithms of the paper's ablations and the first baselines, as config overrides.
-ALGOS: dict[str, dict[str, Any]] = {
-    "r2pac": {},
-    "r2pac-no-penalty": {"reward_penalty": False},
-    "r2pac-no-vc": {"unsafe_branch": False},
-    "r2pac-awr": {"actor": "awr_gaussian"},
-    "r2pac-awr-flow": {"actor": "awr_flow"},
-    "r2pac-hj": {"cost_critic": "hj"},
-    "bc-all": {"actor": "bc_flow", "train_critics": False, "selection": "first"},
-    "bc-safe": {"actor": "bc_flow", "train_critics": False, "selection": "first",
-                "data_filter": "safe"},
-}
+def _names(cls) -> set[str]:
+    return {f.name for f in dataclasses.fields(cls)}
 
+
+GENERIC_KEYS = _names(Config) - {"agent"}
+# Set by the command line's own arguments (or the sweep file's axes), never by --set.
+RUN_IDENTITY = ("task", "algo", "preset")
+
+# Generic preset values; each algorithm adds its own (agents/<module>.py: PRESETS).
 PRESETS: dict[str, dict[str, Any]] = {
     # Table 3 of the paper.
-    "paper": dict(steps=600_000, batch_size=1024, hidden_dims=(512, 512, 512, 512),
-                  actor_hidden_dims=(512, 512, 512), flow_steps=32, num_candidates=16,
-                  eval_every=50_000, checkpoint_every=50_000, threshold_every=1000),
-    # Small nets and few steps: minutes on a 2-core CPU.
-    # 3x128 runs ~160 critic steps/s on 2 cores (3x256: ~77; benchmarks/RESULTS.md).
-    "quick": dict(steps=20_000, batch_size=256, hidden_dims=(128, 128, 128),
-                  actor_hidden_dims=(128, 128, 128), flow_steps=32, num_candidates=16,
-                  eval_every=5_000, checkpoint_every=5_000, threshold_every=500,
-                  threshold_subset=16384),
+    "paper": dict(steps=600_000, batch_size=1024, eval_every=50_000, checkpoint_every=50_000,
+                  threshold_every=1000),
+    # Few steps: minutes on a 2-core CPU.
+    "quick": dict(steps=20_000, batch_size=256, eval_every=5_000, checkpoint_every=5_000,
+                  threshold_every=500),
 }
 
-CHOICES = {
-    "schedule": ("two_phase", "joint"),
-    "penalty_mode": ("absorbing", "direct"),
-    "threshold_source": ("dataset", "batch"),
-    "selection": ("min_qc", "safe_then_reward", "first"),
-    "actor": ("cfg_flow", "awr_flow", "bc_flow", "awr_gaussian", "bc_gaussian"),
-    "cost_critic": ("discounted", "hj"),
-    "data_filter": ("all", "safe"),
-}
+CHOICES = {"data_filter": ("all", "safe")}
 
 
 def resolve_preset(preset: str) -> tuple[str, str]:
@@ -143,83 +134,114 @@ def resolve_preset(preset: str) -> tuple[str, str]:
     return preset, f"preset '{preset}'"
 
 
+def field_types(algo: str) -> dict[str, type]:
+    """Every key `algo` accepts (generic and its own) -> the type of its default."""
+    from r2pac_jax.agents import algo_module
+
+    cls = algo_module(algo).CONFIG
+    gen = Config(task="x")
+    out = {k: type(getattr(gen, k)) for k in GENERIC_KEYS}
+    own = cls()
+    out.update({f.name: type(getattr(own, f.name)) for f in dataclasses.fields(cls)})
+    return out
+
+
 def make_config(task: str | TaskSpec, algo: str = "r2pac", preset: str = "quick",
                 overrides: Optional[dict] = None) -> Config:
-    """Task values, then the preset, then the algo's switches, then explicit overrides."""
+    """Task values, then the presets, then the algorithm's switches, then explicit overrides."""
+    from r2pac_jax.agents import algo_module
+
     spec = task if isinstance(task, TaskSpec) else get_task(task)
-    if algo not in ALGOS:
-        raise ConfigError(f"unknown algo {algo!r}; choose one of {', '.join(ALGOS)}")
+    mod = algo_module(algo)
     preset, _ = resolve_preset(preset)
-    values: dict[str, Any] = dict(
-        task=spec.name, algo=algo, preset=preset, chunk_len=spec.chunk_len,
-        quantile_alpha=spec.quantile_alpha, penalty_c=spec.penalty_c,
-        reward_scale=spec.reward_scale, cost_scale=spec.cost_scale,
-    )
+    types = field_types(algo)
+    values: dict[str, Any] = dict(task=spec.name, algo=algo, preset=preset,
+                                  chunk_len=spec.chunk_len, reward_scale=spec.reward_scale,
+                                  cost_scale=spec.cost_scale)
+    values.update(mod.task_values(spec))
     values.update(PRESETS[preset])
-    values.update(ALGOS[algo])
-    for k, v in (overrides or {}).items():
-        if v is None:
-            continue
-        if k not in {f.name for f in dataclasses.fields(Config)}:
-            raise ConfigError(f"unknown config key {k!r}; known keys: "
-                              f"{', '.join(f.name for f in dataclasses.fields(Config))}")
+    values.update(mod.PRESETS.get(preset, {}))
+    values.update(mod.VARIANTS[algo])
+    given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    for k, v in given.items():
+        if k in RUN_IDENTITY:
+            raise ConfigError(f"{k} cannot be overridden ({k}={v!r}); choose it with --{k}")
+        if k not in types:
+            raise ConfigError(f"unknown config key {k!r} for {algo}; known keys: "
+                              f"{', '.join(sorted(types))}")
+        pinned = mod.FIXED.get(k)
+        if pinned is not None and v != pinned:
+            raise ConfigError(f"{algo} {mod.FIXED_WHY.get(k, 'pins this key')} ({k} is fixed "
+                              f"at {pinned!r}); {k}={v!r} does not apply to it: drop the option")
         values[k] = v
-    cfg = Config.from_dict(values)
+    values.update(mod.FIXED)
+    gen = {k: v for k, v in values.items() if k in GENERIC_KEYS}
+    own = {k: v for k, v in values.items() if k not in GENERIC_KEYS}
+    cfg = Config(**gen, agent=mod.CONFIG(**own))
     validate_config(cfg, spec)
     return cfg
 
 
+def check_range(name: str, value, low=None, high=None, low_open=False, high_open=False) -> None:
+    """Raise ConfigError unless low <= value <= high (open ends exclude the bound); arrays too."""
+    import numpy as np
+
+    v = np.asarray(value, dtype=float)
+    ok = np.isfinite(v)
+    if low is not None:
+        ok &= (v > low) if low_open else (v >= low)
+    if high is not None:
+        ok &= (v < high) if high_open else (v <= high)
+    if not np.all(ok):
+        lo = "" if low is None else ("(" if low_open else "[") + f"{low}"
+        hi = "" if high is None else f"{high}" + (")" if high_open else "]")
+        where = (f"lie in {lo}, {hi}" if low is not None and high is not None
+                 else f"be {'>' if low_open else '>='} {low}" if low is not None
+                 else f"be {'<' if high_open else '<='} {high}")
+        raise ConfigError(f"{name} must {where}, got {value}")
+
+
 def validate_config(cfg: Config, spec: Optional[TaskSpec] = None) -> None:
     """Raise ConfigError naming the bad value and what would be valid."""
+    from r2pac_jax.agents import algo_module
+
+    spec = spec or get_task(cfg.task)
     for k, choices in CHOICES.items():
         if getattr(cfg, k) not in choices:
             raise ConfigError(f"{k}={getattr(cfg, k)!r} is not one of {choices}")
-    check_hparams(cfg.quantile_alpha, cfg.penalty_c, cfg.guidance_scale)
-    if not 0.0 < cfg.expectile < 1.0:
-        raise ConfigError(f"expectile must be in (0, 1), got {cfg.expectile}")
-    if not 0.0 < cfg.discount < 1.0:
-        raise ConfigError(f"discount must be in (0, 1), got {cfg.discount}")
+    check_range("discount", cfg.discount, 0.0, 1.0, low_open=True, high_open=True)
     if cfg.chunk_len < 1:
         raise ConfigError(f"chunk_len must be >= 1, got {cfg.chunk_len}")
-    if spec is not None and cfg.chunk_len > spec.episode_len:
+    if cfg.chunk_len > spec.episode_len:
         raise ConfigError(f"chunk_len {cfg.chunk_len} is longer than an episode of {spec.name} "
                           f"({spec.episode_len} steps); choose --chunk-len <= {spec.episode_len}")
-    for k in ("steps", "batch_size", "flow_steps", "num_candidates", "seeds", "threshold_every",
-              "eval_every", "checkpoint_every", "threshold_subset", "num_critics"):
+    for k in ("steps", "batch_size", "seeds", "threshold_every", "eval_every", "checkpoint_every"):
         if getattr(cfg, k) < 1:
             raise ConfigError(f"{k} must be >= 1, got {getattr(cfg, k)}")
+    for k in ("reward_scale", "cost_scale"):
+        check_range(k, getattr(cfg, k))
     if cfg.eval_episodes < 0:
         raise ConfigError(f"eval_episodes must be >= 0, got {cfg.eval_episodes}")
     for k in ("steps", "eval_every", "checkpoint_every"):
         if getattr(cfg, k) % cfg.threshold_every:
             raise ConfigError(f"{k}={getattr(cfg, k)} must be a multiple of threshold_every="
                               f"{cfg.threshold_every} (the compiled block)")
+    algo_module(cfg.algo).validate(cfg.agent)
 
 
-def check_hparams(alpha, penalty_c, guidance_scale) -> None:
-    """The scalar hyperparameters a sweep may vary (also checked per grid cell)."""
-    import numpy as np
+def default_hparams(cfg: Config) -> dict:
+    """The vmappable scalars of cfg's algorithm at their configured values: {name: f32 []}.
 
-    a = np.asarray(alpha, dtype=float)
-    if not np.all((a > 0.0) & (a < 1.0)):
-        raise ConfigError(f"quantile_alpha must lie in (0, 1), got {alpha}")
-    if not np.all(np.asarray(penalty_c, dtype=float) >= 0.0):
-        raise ConfigError(f"penalty_c must be >= 0, got {penalty_c}")
-    if not np.all(np.asarray(guidance_scale, dtype=float) >= 0.0):
-        raise ConfigError(f"guidance_scale must be >= 0, got {guidance_scale}")
+    These may differ between the lanes of one compiled program (see `lanes.Lanes`)."""
+    import jax.numpy as jnp
+
+    from r2pac_jax.agents import algo_module
+
+    return {k: jnp.float32(getattr(cfg, k)) for k in algo_module(cfg.algo).HPARAMS}
 
 
-class HParams(NamedTuple):
-    """Scalars that may differ between vmapped lanes of one compiled program."""
+def check_hparams(algo: str, values: dict) -> None:
+    """Check per-lane values of the vmappable scalars (each grid cell is checked too)."""
+    from r2pac_jax.agents import algo_module
 
-    quantile_alpha: jnp.ndarray
-    penalty_c: jnp.ndarray
-    guidance_scale: jnp.ndarray
-
-    @staticmethod
-    def from_config(cfg: Config) -> "HParams":
-        return HParams(jnp.float32(cfg.quantile_alpha), jnp.float32(cfg.penalty_c),
-                       jnp.float32(cfg.guidance_scale))
-
-
-HPARAM_KEYS = HParams._fields
+    algo_module(algo).check_hparams(values)

@@ -123,31 +123,40 @@ def evaluate(policy_fn: Callable, params, task, episodes: int = 20,
     return res
 
 
+def eval_keys(seeds, step: int) -> jax.Array:
+    """[L] evaluation keys of the lanes' seeds at training step `step` (fixed per seed and step,
+    independent of the training stream)."""
+    return jnp.stack([jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(s), 1), step)
+                      for s in seeds])
+
+
 def evaluate_run(run_dir, episodes: int = 20, selection: Optional[str] = None,
                  guidance_scale: Optional[float] = None, num_candidates: Optional[int] = None,
                  physics: str = "auto", seed: int = 123) -> dict:
     """Re-evaluate every lane of a finished run under other inference settings.
 
     The trained parameters are not touched: candidate selection, guidance scale and the number
-    of candidates only act at sampling time. Returns per-lane arrays as `LaneEvaluator` does.
+    of candidates only act at sampling time (algorithms without them refuse them by name).
+    Returns per-lane arrays as `LaneEvaluator` does.
     """
-    import dataclasses as dc
-    import json
-    from pathlib import Path
+    from r2pac_jax.agents import make_agent
+    from r2pac_jax.policy import read_run
 
-    from r2pac_jax.agents.r2pac import Agent
-    from r2pac_jax.config import Config
-    from r2pac_jax.policy import restore_policy_params
-
-    run_dir = Path(run_dir)
-    cfg = Config.from_dict(json.loads((run_dir / "config.json").read_text()))
+    cfg, lanes = read_run(run_dir)
     changes = {k: v for k, v in dict(selection=selection, num_candidates=num_candidates).items()
                if v is not None}
-    cfg = dc.replace(cfg, **changes)
+    if changes:
+        cfg = cfg.replace(**changes)
     task = get_task(cfg.task)
-    agent = Agent(cfg, task.obs_dim, task.act_dim)
+    agent = make_agent(cfg, task.obs_dim, task.act_dim)
+    from r2pac_jax.policy import restore_policy_params
+
     pp, lanes = restore_policy_params(run_dir, agent)
     if guidance_scale is not None:
+        if "guidance" not in pp:
+            from r2pac_jax.config import ConfigError
+
+            raise ConfigError(f"{cfg.algo} has no guidance scale to change")
         pp["guidance"] = jnp.full_like(pp["guidance"], guidance_scale)
     keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(seed), s) for s in lanes["seeds"]])
     out = LaneEvaluator(agent.act, task, episodes, physics=physics)(pp, keys)

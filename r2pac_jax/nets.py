@@ -86,3 +86,33 @@ class GaussianActor(nn.Module):
         mean = jnp.tanh(MLP(self.hidden_dims, self.act_size)(obs))
         log_std = self.param("log_std", nn.initializers.zeros, (self.act_size,))
         return mean, jnp.clip(log_std, -5.0, 2.0)
+
+
+def torch_linear_init(fan_in: int):
+    """PyTorch nn.Linear's default init, U(-1/sqrt(fan_in), 1/sqrt(fan_in)), for weights and bias
+    (so a cloner ported from OSRL starts from the same distribution)."""
+    bound = 1.0 / jnp.sqrt(jnp.float32(fan_in))
+
+    def init(key, shape, dtype=jnp.float32):
+        return jax.random.uniform(key, shape, dtype, -bound, bound)
+
+    return init
+
+
+class DeterministicActor(nn.Module):
+    """OSRL's MLPActor: ReLU hidden layers, tanh output. obs [B, o] -> action [B, act_dim]."""
+
+    hidden_dims: Sequence[int]
+    act_dim: int
+
+    @nn.compact
+    def __call__(self, obs):
+        x = obs
+        sizes = list(self.hidden_dims) + [self.act_dim]
+        for n, h in enumerate(sizes):
+            fan_in = x.shape[-1]
+            x = nn.Dense(h, kernel_init=torch_linear_init(fan_in),
+                         bias_init=torch_linear_init(fan_in))(x)
+            if n < len(sizes) - 1:
+                x = nn.relu(x)
+        return jnp.tanh(x)

@@ -109,3 +109,17 @@ def plot_curves(records: Iterable[dict], keys: Sequence[str], path, title: str =
     out = _savefig(fig, path)
     plt.close(fig)
     return out
+
+
+def plot_run(logs, out_dir, title: str, metric_keys: Sequence[str]) -> None:
+    """training.png (the given metric keys that were logged) and eval.png of a run directory."""
+    out_dir = Path(out_dir)
+    rows = logs.read("metrics")
+    seen = {k for r in rows for k in r}
+    keys = [k for k in metric_keys if k in seen]
+    if keys:
+        plot_curves(rows, keys, out_dir / "training.png", title)
+    ev = logs.read("eval")
+    if ev:
+        plot_curves(ev, ["normalized_reward", "normalized_cost"], out_dir / "eval.png",
+                    f"{title}: evaluation")

@@ -27,12 +27,17 @@ import tomllib
 from pathlib import Path
 from typing import Any, Optional
 
-from r2pac_jax.config import ALGOS, Config, ConfigError, HPARAM_KEYS, make_config, resolve_preset
+from r2pac_jax.agents import algo_module
+from r2pac_jax.config import ConfigError, field_types, make_config, resolve_preset
 from r2pac_jax.io import DirectoryBusy, atomic_write_json, atomic_write_text
 
 TOP_KEYS = {"name", "description", "task", "tasks", "algo", "algos", "preset", "seeds",
             "eval_episodes", "physics", "dataset", "config", "grid"}
-VMAPPED = set(HPARAM_KEYS)
+
+
+def vmapped(algo: str) -> set[str]:
+    """The keys whose values may differ between lanes of one compiled program of `algo`."""
+    return set(algo_module(algo).HPARAMS)
 
 
 class SweepError(ValueError):
@@ -90,13 +95,7 @@ class Sweep:
     configs: dict  # group_id -> Config
 
 
-def _field_types() -> dict[str, Any]:
-    defaults = Config(task="x")
-    return {f.name: type(getattr(defaults, f.name)) for f in dataclasses.fields(Config)}
-
-
-def _check_value(key: str, value: Any, where: str) -> Any:
-    types = _field_types()
+def _check_value(key: str, value: Any, where: str, types: dict[str, type]) -> Any:
     if key not in types:
         raise SweepError(f"{where}: unknown config key {key!r}; known keys: "
                          f"{', '.join(sorted(types))}")
@@ -153,18 +152,25 @@ def load_sweep(path, task_override: Optional[str] = None) -> Sweep:
     if not tasks:
         raise SweepError(f"{path}: no task (set `task = \"ReachAvoid\"` or pass --task)")
     algos = axis("algo", "algos") or ["r2pac"]
+    types: dict[str, type] = {}
     for a in algos:
-        if a not in ALGOS:
-            raise SweepError(f"{path}: unknown algo {a!r}; choose from {', '.join(ALGOS)}")
+        try:
+            types.update(field_types(a))
+        except ConfigError as e:
+            raise SweepError(f"{path}: {e}") from None
+    for k in ("task", "algo", "preset"):
+        if k in fixed:
+            raise SweepError(f"{path} [config]: {k} is set at the top level (or as a grid "
+                             "axis), not in [config]")
     for k in fixed:
-        fixed[k] = _check_value(k, fixed[k], f"{path} [config]")
+        fixed[k] = _check_value(k, fixed[k], f"{path} [config]", types)
     axes = {}
     for k, vals in grid.items():
         if not isinstance(vals, list):
             raise SweepError(f"{path} [grid]: {k} must be a list of values, got {vals!r}")
         if not vals:
             raise SweepError(f"{path} [grid]: {k} is empty: the grid would have no cell")
-        axes[k] = [_check_value(k, v, f"{path} [grid]") for v in vals]
+        axes[k] = [_check_value(k, v, f"{path} [grid]", types) for v in vals]
     for k in ("seeds", "steps"):
         if k in axes:
             raise SweepError(f"{path} [grid]: {k} cannot be a grid axis; set `seeds = N` at the "
@@ -193,7 +199,7 @@ def load_sweep(path, task_override: Optional[str] = None) -> Sweep:
         raise SweepError(f"{path}: the grid is empty")
     groups: dict[tuple, Group] = {}
     for c in cells:
-        static = tuple((k, v) for k, v in c.values if k not in VMAPPED)
+        static = tuple((k, v) for k, v in c.values if k not in vmapped(c.algo))
         key = (c.task, c.algo, static)
         groups.setdefault(key, Group(c.task, c.algo, static, [])).cells.append(c)
     configs = {}
@@ -239,7 +245,7 @@ def run_group(sweep: Sweep, group: Group, out: Path, log=print, progress: bool =
 
     task = get_task(group.task)
     cfg = sweep.configs[group.group_id]
-    cells_hp = [{k: v for k, v in c.values if k in VMAPPED} for c in group.cells]
+    cells_hp = [{k: v for k, v in c.values if k in vmapped(group.algo)} for c in group.cells]
     lanes = Lanes.build(cfg, sweep.seeds, cells_hp)
     ds = load_task_dataset(task, sweep.dataset, announce=log)
     gdir = out / "groups" / group.group_id

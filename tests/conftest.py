@@ -24,7 +24,11 @@ TINY = dict(steps=20, batch_size=32, hidden_dims=(16, 16), actor_hidden_dims=(16
 
 
 def tiny_config(algo="r2pac", task="ReachAvoid", **kw):
-    over = dict(TINY)
+    """Tiny networks and few steps; TINY's keys that `algo` does not have are left out."""
+    from r2pac_jax.config import field_types
+
+    keys = field_types(algo)
+    over = {k: v for k, v in TINY.items() if k in keys}
     over.update(kw)
     return make_config(task, algo, "quick", over)
 

@@ -93,7 +93,7 @@ def test_sweep_runs_survives_interruption_and_reports(tmp_path, data_dir):
 
     g = s.groups[1]
     cfg = s.configs[g.group_id]
-    lanes = Lanes.build(cfg, s.seeds, [{k: v for k, v in c.values if k in sw.VMAPPED}
+    lanes = Lanes.build(cfg, s.seeds, [{k: v for k, v in c.values if k in sw.vmapped(g.algo)}
                                        for c in g.cells])
     ds = load_task_dataset(get_task("ReachAvoid"), announce=lambda m: None)
     Run(cfg, get_task("ReachAvoid"), ds, out / "groups" / g.group_id, lanes, progress=False,

@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 
 from conftest import tiny_config
-from r2pac_jax.config import ConfigError, HParams
+from r2pac_jax.config import ConfigError, default_hparams
 from r2pac_jax.tasks import get_task
 from r2pac_jax.train import Lanes, Run, chunk_dataset, main, make_train
 
-ALL_ALGOS = ["r2pac", "r2pac-no-penalty", "r2pac-no-vc", "r2pac-awr", "r2pac-awr-flow",
-             "r2pac-hj", "bc-all", "bc-safe"]
+from r2pac_jax.agents import algo_names
+
+ALL_ALGOS = algo_names()
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +30,7 @@ def test_vmap_over_seeds_equals_separate_runs(reach_avoid_data, task):
     cfg = tiny_config(schedule="joint")
     data = chunk_dataset(cfg, task, reach_avoid_data)
     train = make_train(cfg, data, task.obs_dim, task.act_dim)
-    hp = HParams.from_config(cfg)
+    hp = default_hparams(cfg)
     keys = jnp.stack([jax.random.PRNGKey(0), jax.random.PRNGKey(1)])
     hps = jax.tree_util.tree_map(lambda x: jnp.stack([x, x]), hp)
     batched, mb = jax.jit(jax.vmap(train))(keys, hps)
@@ -45,7 +46,8 @@ def test_hparam_lanes_differ_and_match_their_config(reach_avoid_data, task):
     cfg = tiny_config(schedule="joint")
     data = chunk_dataset(cfg, task, reach_avoid_data)
     train = make_train(cfg, data, task.obs_dim, task.act_dim)
-    hp = HParams(jnp.array([0.5, 0.9]), jnp.array([1.0, 1.0]), jnp.array([2.0, 2.0]))
+    hp = dict(quantile_alpha=jnp.array([0.5, 0.9]), penalty_c=jnp.array([1.0, 1.0]),
+              guidance_scale=jnp.array([2.0, 2.0]))
     keys = jnp.stack([jax.random.PRNGKey(0)] * 2)
     st, _ = jax.jit(jax.vmap(train))(keys, hp)
     assert float(st.threshold[0]) < float(st.threshold[1])  # alpha 0.5 vs 0.9 quantile
@@ -73,7 +75,7 @@ def test_every_algo_trains_and_acts(reach_avoid_data, task, algo):
         for k, v in metrics[phase].items():
             assert np.all(np.isfinite(np.asarray(v))), (algo, phase, k)
     agent = train.agent
-    pp = agent.policy_params(state, HParams.from_config(cfg))
+    pp = agent.policy_params(state, default_hparams(cfg))
     obs = jnp.asarray(reach_avoid_data.observations[:5])
     a = jax.jit(agent.act)(pp, obs, jax.random.PRNGKey(1))
     chex.assert_shape(a, (5, task.act_dim))
@@ -116,12 +118,18 @@ def test_cli_end_to_end_and_load_policy(data_dir, tmp_path, capsys):
             "threshold_every=10", "checkpoint_every=10", "flow_steps=4", "num_candidates=4",
             "threshold_subset=256"]
     argv = ["--task", "ReachAvoid", "--preset", "quick", "--seeds", "2", "--eval-episodes", "3",
-            "--eval-every", "10", "--out", str(out), "--no-progress", "--baselines", "bc-safe"]
+            "--eval-every", "10", "--out", str(out), "--no-progress", "--baselines",
+            "bc-safe,bc-safe-mlp"]
     for s in sets:
         argv += ["--set", s]
     assert main(argv) == 0
     printed = capsys.readouterr().out
     assert "generating" in printed and "| ReachAvoid |" in printed and "bc-safe reward" in printed
+    assert "bc-safe-mlp reward" in printed
+    # the one-step cloner drops the chunked agents' keys with a note instead of failing
+    assert "note: baseline bc-safe-mlp does not use flow_steps=4; ignored for it" in printed
+    mlp = json.loads((out / "baselines" / "bc-safe-mlp" / "config.json").read_text())
+    assert mlp["chunk_len"] == 1 and mlp["steps"] == 20 and mlp["agent"]["hidden_dims"] == [16, 16]
     res = json.loads((out / "results.json").read_text())
     for key in ("normalized_reward", "normalized_cost"):
         assert set(res[key]) >= {"mean", "std", "per_seed"} and len(res[key]["per_seed"]) == 2
@@ -164,6 +172,20 @@ def test_cli_errors(data_dir, capsys, tmp_path, monkeypatch):
     assert "longer than an episode" in capsys.readouterr().err
     assert main(["--task", "ReachAvoid", "--dataset", str(tmp_path / "missing.hdf5")]) == 2
     assert "no such file" in capsys.readouterr().err
+    assert main(["--task", "ReachAvoid", "--algo", "bc-all-mlp", "--chunk-len", "5"]) == 2
+    assert "bc-all-mlp clones one action per step" in capsys.readouterr().err
+    assert main(["--task", "ReachAvoid", "--algo", "bc-all-mlp", "--set",
+                 "quantile_alpha=0.8"]) == 2
+    assert "unknown config key 'quantile_alpha' for bc-all-mlp" in capsys.readouterr().err
+    assert main(["--task", "ReachAvoid", "--algo", "bc-all-mlp", "--baselines", "r2pac", "--set",
+                 "quantile_alpha=0.8"]) == 2  # a baseline's key is not the requested algo's
+    assert "not a config key of bc-all-mlp" in capsys.readouterr().err
+    assert main(["--task", "ReachAvoid", "--set", "task=CarGoal2"]) == 2
+    assert "task is chosen with --task" in capsys.readouterr().err
+    assert main(["--task", "ReachAvoid", "--algo", "cpq-x"]) == 2
+    assert "unknown algo 'cpq-x'; choose one of r2pac" in capsys.readouterr().err
+    assert main(["--task", "ReachAvoid", "--set", "steps=ten"]) == 2
+    assert "expected an integer" in capsys.readouterr().err
     # no dataset anywhere and a cache directory that cannot be written: a clear error, before
     # any generation or training starts
     blocker = tmp_path / "not-a-dir"

@@ -39,3 +39,35 @@ def euler_sample(velocity: Callable[[jax.Array, jax.Array], jax.Array], a0: jax.
 
     a, _ = jax.lax.scan(body, a0, jnp.arange(steps))
     return a
+
+
+def sample_chunks(velocity_apply: Callable, obs: jax.Array, key: jax.Array, k: int,
+                  chunk_size: int, steps: int, guidance=None) -> jax.Array:
+    """k candidate chunks per state from a flow policy: obs [B, o] -> [B, k, chunk_size] in [-1, 1].
+
+    velocity_apply(a [n, D], i [n], obs [n, o], label [n] int) -> [n, D] is the velocity field
+    with its parameters bound. With `guidance` (a [] scale) the field is CFG-combined from its
+    o = 1 and null branches, evaluated in one batched pass; without it, the null branch alone.
+    """
+    from r2pac_jax.nets import NULL_LABEL
+
+    B = obs.shape[0]
+    obs_k = jnp.repeat(obs, k, axis=0)
+    a0 = jax.random.normal(key, (B * k, chunk_size))
+    n = B * k
+    if guidance is not None:
+        obs2 = jnp.concatenate([obs_k, obs_k])
+        labels = jnp.concatenate([jnp.ones((n,), jnp.int32),
+                                  jnp.full((n,), NULL_LABEL, jnp.int32)])
+
+        def velocity(a, i):
+            v = velocity_apply(jnp.concatenate([a, a]), jnp.full((2 * n,), i), obs2, labels)
+            return cfg_combine(v[n:], v[:n], guidance)
+    else:
+        null = jnp.full((n,), NULL_LABEL, jnp.int32)
+
+        def velocity(a, i):
+            return velocity_apply(a, jnp.full((n,), i), obs_k, null)
+
+    a = euler_sample(velocity, a0, steps)
+    return jnp.clip(a, -1.0, 1.0).reshape(B, k, chunk_size)

@@ -1,12 +1,14 @@
-"""The R2PAC agent: state pytree, one critic update, one policy update, and the policy.
+"""R2PAC and its ablations (ALGORITHM.md): state pytree, critic and policy updates, the policy.
 
-All variants of ALGORITHM.md (and the BC baselines) are values of `Config`; this module only
-wires the pure pieces of `critics.py`, `extraction.py`, `flow.py`, `gaussian.py` and
-`selection.py` together. The `Agent` object holds static structure (network definitions,
-optimiser); everything that changes travels in `AgentState`.
+One module serves `r2pac` and the paper's ablations (`r2pac-no-penalty`, `r2pac-no-vc`,
+`r2pac-awr`, `r2pac-awr-flow`, `r2pac-hj`): each is a set of values of `R2PACConfig` that
+switch small pure pieces of `critics.py`, `extraction.py`, `flow.py`, `gaussian.py` and
+`selection.py`. The `Agent` object holds static structure (network definitions, optimiser);
+everything that changes travels in `AgentState`.
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import chex
@@ -16,10 +18,121 @@ import optax
 from flax import struct
 
 from r2pac_jax.agents import critics, extraction, flow, gaussian
+from r2pac_jax.agents.base import ChunkAlgorithm, check_act, check_obs, check_positive
 from r2pac_jax.agents.selection import select_candidate
-from r2pac_jax.config import Config, HParams
+from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data.chunks import Batch, ChunkedData
 from r2pac_jax.nets import NULL_LABEL, GaussianActor, QEnsemble, ValueNet, VelocityField
+
+
+@dataclasses.dataclass(frozen=True)
+class R2PACConfig:
+    lr: float = 3e-4
+    hidden_dims: tuple = (128, 128, 128)
+    actor_hidden_dims: tuple = (128, 128, 128)  # the AWR Gaussian actor: a 3-layer MLP
+    layer_norm: bool = False
+    schedule: str = "two_phase"  # two_phase (critics, then policy) | joint
+    # IQL critics
+    expectile: float = 0.9
+    polyak: float = 0.005
+    num_critics: int = 2
+    # safety threshold and penalty (alpha and C come from the task registry)
+    quantile_alpha: float = 0.9
+    penalty_c: float = 1.0
+    penalty_mode: str = "absorbing"  # absorbing: target -C/(1-g); direct: target -C
+    threshold_source: str = "dataset"  # dataset | batch
+    threshold_subset: int = 65536
+    # policy
+    guidance_scale: float = 2.0
+    cfg_dropout: float = 0.1
+    flow_steps: int = 32
+    num_candidates: int = 16
+    selection: str = "min_qc"  # min_qc | safe_then_reward | first
+    awr_temperature: float = 6.0
+    awr_clip: float = 100.0
+    time_embed_dim: int = 16
+    # ablation switches (set by the variants below)
+    actor: str = "cfg_flow"  # cfg_flow | awr_flow | awr_gaussian
+    reward_penalty: bool = True  # False: "w/o Vbar_r" (unpenalised V_r in safe states)
+    unsafe_branch: bool = True  # False: "w/o V_c" (reward advantage labels everywhere)
+    cost_critic: str = "discounted"  # discounted | hj (feasibility, Eq. 42)
+
+
+CONFIG = R2PACConfig
+
+PRESETS = {
+    # Table 3 of the paper.
+    "paper": dict(hidden_dims=(512, 512, 512, 512), actor_hidden_dims=(512, 512, 512),
+                  flow_steps=32, num_candidates=16),
+    # 3x128 runs ~160 critic steps/s on 2 cores (3x256: ~77; benchmarks/RESULTS.md).
+    "quick": dict(hidden_dims=(128, 128, 128), actor_hidden_dims=(128, 128, 128), flow_steps=32,
+                  num_candidates=16, threshold_subset=16384),
+}
+
+VARIANTS = {
+    "r2pac": {},
+    "r2pac-no-penalty": {"reward_penalty": False},
+    "r2pac-no-vc": {"unsafe_branch": False},
+    "r2pac-awr": {"actor": "awr_gaussian"},
+    "r2pac-awr-flow": {"actor": "awr_flow"},
+    "r2pac-hj": {"cost_critic": "hj"},
+}
+
+FIXED: dict = {}
+FIXED_WHY: dict = {}
+
+HPARAMS = ("quantile_alpha", "penalty_c", "guidance_scale")
+
+CHOICES = {
+    "schedule": ("two_phase", "joint"),
+    "penalty_mode": ("absorbing", "direct"),
+    "threshold_source": ("dataset", "batch"),
+    "selection": ("min_qc", "safe_then_reward", "first"),
+    "actor": ("cfg_flow", "awr_flow", "awr_gaussian"),
+    "cost_critic": ("discounted", "hj"),
+}
+
+
+def task_values(spec) -> dict:
+    """The paper's per-task values (Table 4)."""
+    return dict(quantile_alpha=spec.quantile_alpha, penalty_c=spec.penalty_c)
+
+
+def phases(c: R2PACConfig) -> tuple[str, ...]:
+    return ("critic", "actor") if c.schedule == "two_phase" else ("joint",)
+
+
+def check_hparams(values: dict) -> None:
+    if "quantile_alpha" in values:
+        check_range("quantile_alpha", values["quantile_alpha"], 0, 1, low_open=True,
+                    high_open=True)
+    for k in ("penalty_c", "guidance_scale"):
+        if k in values:
+            check_range(k, values[k], 0)
+    unknown = set(values) - set(HPARAMS)
+    if unknown:
+        raise ConfigError(f"cannot vary {sorted(unknown)} across lanes; vmappable "
+                          f"hyperparameters are {list(HPARAMS)}")
+
+
+def validate(c: R2PACConfig) -> None:
+    for k, choices in CHOICES.items():
+        if getattr(c, k) not in choices:
+            raise ConfigError(f"{k}={getattr(c, k)!r} is not one of {choices}")
+    check_hparams({k: getattr(c, k) for k in HPARAMS})
+    check_range("expectile", c.expectile, 0, 1, low_open=True, high_open=True)
+    check_range("polyak", c.polyak, 0, 1, low_open=True)
+    check_range("cfg_dropout", c.cfg_dropout, 0, 1)
+    check_range("awr_temperature", c.awr_temperature, 0)
+    check_positive("lr", c.lr)
+    check_positive("awr_clip", c.awr_clip)
+    for k in ("flow_steps", "num_candidates", "threshold_subset", "num_critics",
+              "time_embed_dim"):
+        if getattr(c, k) < 1:
+            raise ConfigError(f"{k} must be >= 1, got {getattr(c, k)}")
+    if not c.hidden_dims or not c.actor_hidden_dims or min(c.hidden_dims + c.actor_hidden_dims) < 1:
+        raise ConfigError(f"hidden_dims / actor_hidden_dims must be non-empty lists of sizes >= 1, "
+                          f"got {c.hidden_dims} / {c.actor_hidden_dims}")
 
 
 @struct.dataclass
@@ -36,11 +149,12 @@ def _polyak(target, online, rate):
     return jax.tree_util.tree_map(lambda t, o: (1.0 - rate) * t + rate * o, target, online)
 
 
-class Agent:
-    def __init__(self, cfg: Config, obs_dim: int, act_dim: int):
-        self.cfg = cfg
-        self.obs_dim, self.act_dim, self.h = obs_dim, act_dim, cfg.chunk_len
-        self.chunk_size = cfg.chunk_len * act_dim
+class Agent(ChunkAlgorithm):
+    plot_metrics = ("loss_qc", "loss_qr", "threshold", "loss_actor")
+
+    def __init__(self, cfg, obs_dim: int, act_dim: int):
+        super().__init__(cfg, obs_dim, act_dim)
+        self.threshold_subset = cfg.threshold_subset
         self.q_net = QEnsemble(cfg.hidden_dims, cfg.num_critics, cfg.layer_norm)
         self.v_net = ValueNet(cfg.hidden_dims, cfg.layer_norm)
         if self.is_gaussian:
@@ -55,34 +169,25 @@ class Agent:
     # ---- structure ---------------------------------------------------------------------
     @property
     def is_gaussian(self) -> bool:
-        return self.cfg.actor in ("awr_gaussian", "bc_gaussian")
+        return self.cfg.actor == "awr_gaussian"
 
-    @property
-    def uses_critics(self) -> bool:
-        return self.cfg.train_critics
-
-    @property
-    def critic_nets(self) -> tuple[str, ...]:
-        return ("qc", "vc", "qr", "vr") if self.uses_critics else ()
-
-    def init(self, key: jax.Array, hp: HParams) -> AgentState:
+    def init(self, key: jax.Array, hp: dict) -> AgentState:
         del hp
         k_net, k_state = jax.random.split(key)
         ks = jax.random.split(k_net, 5)
         obs = jnp.zeros((1, self.obs_dim))
         chunk = jnp.zeros((1, self.chunk_size))
         params = {}
-        if self.uses_critics:
-            params["qc"] = self.q_net.init(ks[0], obs, chunk)
-            params["vc"] = self.v_net.init(ks[1], obs)
-            params["qr"] = self.q_net.init(ks[2], obs, chunk)
-            params["vr"] = self.v_net.init(ks[3], obs)
+        params["qc"] = self.q_net.init(ks[0], obs, chunk)
+        params["vc"] = self.v_net.init(ks[1], obs)
+        params["qr"] = self.q_net.init(ks[2], obs, chunk)
+        params["vr"] = self.v_net.init(ks[3], obs)
         if self.is_gaussian:
             params["actor"] = self.actor_net.init(ks[4], obs)
         else:
             params["actor"] = self.actor_net.init(ks[4], chunk, jnp.zeros((1,)), obs,
                                                   jnp.zeros((1,), jnp.int32))
-        target = {k: params[k] for k in ("qc", "qr") if k in params}
+        target = {k: params[k] for k in ("qc", "qr")}
         opt = {k: self.tx.init(v) for k, v in params.items()}
         return AgentState(params=params, target=target, opt=opt, threshold=jnp.zeros(()),
                           step=jnp.zeros((), jnp.int32), key=k_state)
@@ -92,15 +197,24 @@ class Agent:
         return optax.apply_updates(state_params[name], updates), new_opt
 
     # ---- threshold -----------------------------------------------------------------------
-    def dataset_threshold(self, params: dict, data: ChunkedData, hp: HParams) -> jax.Array:
+    def dataset_threshold(self, params: dict, data: ChunkedData, hp: dict) -> jax.Array:
         """l over the fixed subset of dataset states (0 for the HJ feasibility variant)."""
-        if self.hj or not self.uses_critics:
+        if self.hj:
             return jnp.zeros(())
         vc = self.v_net.apply(params["vc"], data.observations[data.threshold_states])
-        return critics.safety_threshold(vc, hp.quantile_alpha)
+        return critics.safety_threshold(vc, hp["quantile_alpha"])
+
+    def begin_block(self, state: AgentState, hp: dict, data: ChunkedData) -> AgentState:
+        """Refresh l once per block over the dataset subset (threshold_source=dataset)."""
+        if self.cfg.threshold_source == "dataset":
+            state = state.replace(threshold=self.dataset_threshold(state.params, data, hp))
+        return state
+
+    def summary(self, state: AgentState) -> dict:
+        return {"threshold": state.threshold}
 
     # ---- updates ---------------------------------------------------------------------------
-    def update_critics(self, state: AgentState, batch: Batch, hp: HParams):
+    def update_critics(self, state: AgentState, batch: Batch, hp: dict):
         cfg = self.cfg
         B = batch.observations.shape[0]
         chex.assert_shape(batch.actions, (B, self.h, self.act_dim))
@@ -135,7 +249,7 @@ class Agent:
         if self.hj:
             threshold = jnp.zeros(())
         elif cfg.threshold_source == "batch":
-            threshold = critics.safety_threshold(vc, hp.quantile_alpha)
+            threshold = critics.safety_threshold(vc, hp["quantile_alpha"])
         else:
             threshold = state.threshold
 
@@ -149,7 +263,7 @@ class Agent:
         (l_vr, vr), g = jax.value_and_grad(vr_loss, has_aux=True)(params["vr"])
         params["vr"], opt["vr"] = self._apply_grads(params, opt, "vr", g)
         vr_next = v(params["vr"], nobs)
-        penalty = critics.penalty_value(hp.penalty_c, cfg.discount, cfg.penalty_mode)
+        penalty = critics.penalty_value(hp["penalty_c"], cfg.discount, cfg.penalty_mode)
         qr_target = critics.penalised_reward_target(
             batch.reward, batch.bootstrap, self.discount_h, vr_next, vc_next, threshold, penalty,
             use_penalty=cfg.reward_penalty)
@@ -180,7 +294,7 @@ class Agent:
         adv_c = q(tgt["qc"], obs, chunk).max(0) - vc
         return safe, adv_r, adv_c
 
-    def update_actor(self, state: AgentState, batch: Batch, hp: HParams, key: jax.Array):
+    def update_actor(self, state: AgentState, batch: Batch, hp: dict, key: jax.Array):
         cfg = self.cfg
         B = batch.observations.shape[0]
         obs, mask = batch.observations, batch.action_mask
@@ -188,18 +302,17 @@ class Agent:
         metrics: dict[str, Any] = {}
         weights = None
         labels = jnp.full((B,), NULL_LABEL, jnp.int32)
-        if cfg.actor in ("cfg_flow", "awr_flow", "awr_gaussian"):
-            safe, adv_r, adv_c = self._advantages(state, obs, chunk)
-            metrics["actor_safe_frac"] = safe.mean()
-            if cfg.actor == "cfg_flow":
-                k_drop, key = jax.random.split(key)
-                o = extraction.optimality_labels(safe, adv_r, adv_c, cfg.unsafe_branch)
-                metrics["label_balance"] = o.mean()
-                labels = extraction.drop_labels(k_drop, o, cfg.cfg_dropout)
-            else:
-                weights = extraction.awr_weights(safe, adv_r, adv_c, cfg.awr_temperature,
-                                                 cfg.awr_clip, cfg.unsafe_branch)
-                metrics["awr_weight_mean"] = weights.mean()
+        safe, adv_r, adv_c = self._advantages(state, obs, chunk)
+        metrics["actor_safe_frac"] = safe.mean()
+        if cfg.actor == "cfg_flow":
+            k_drop, key = jax.random.split(key)
+            o = extraction.optimality_labels(safe, adv_r, adv_c, cfg.unsafe_branch)
+            metrics["label_balance"] = o.mean()
+            labels = extraction.drop_labels(k_drop, o, cfg.cfg_dropout)
+        else:
+            weights = extraction.awr_weights(safe, adv_r, adv_c, cfg.awr_temperature,
+                                             cfg.awr_clip, cfg.unsafe_branch)
+            metrics["awr_weight_mean"] = weights.mean()
 
         shape = (B, self.h, self.act_dim)
         if self.is_gaussian:
@@ -224,7 +337,7 @@ class Agent:
         metrics["loss_actor"] = loss
         return state.replace(params=params, opt=opt), metrics
 
-    def update(self, state: AgentState, batch: Batch, hp: HParams, phase: str):
+    def update(self, state: AgentState, batch: Batch, hp: dict, phase: str):
         """One gradient step of the given phase ("critic", "actor" or "joint")."""
         key, k_actor = jax.random.split(state.key)
         state = state.replace(key=key)
@@ -238,48 +351,26 @@ class Agent:
         return state.replace(step=state.step + 1), metrics
 
     # ---- acting ------------------------------------------------------------------------------
-    def policy_params(self, state: AgentState, hp: HParams) -> dict:
+    def policy_params(self, state: AgentState, hp: dict) -> dict:
         """What the policy needs: actor, target critics, threshold, guidance scale."""
-        pp = {"actor": state.params["actor"], "guidance": jnp.asarray(hp.guidance_scale),
-              "threshold": state.threshold}
-        if self.uses_critics:
-            pp["qc"], pp["qr"] = state.target["qc"], state.target["qr"]
-        return pp
+        return {"actor": state.params["actor"], "guidance": jnp.asarray(hp["guidance_scale"]),
+                "threshold": state.threshold, "qc": state.target["qc"], "qr": state.target["qr"]}
 
     def sample_chunks(self, pp: dict, obs: jax.Array, key: jax.Array, k: int) -> jax.Array:
         """k candidate chunks per state from the flow policy: obs [B, o] -> [B, k, h*A] in [-1, 1]."""
-        B = obs.shape[0]
-        obs_k = jnp.repeat(obs, k, axis=0)
-        a0 = jax.random.normal(key, (B * k, self.chunk_size))
-        apply = self.actor_net.apply
-        n = B * k
-        if self.cfg.actor == "cfg_flow":
-            obs2 = jnp.concatenate([obs_k, obs_k])
-            labels = jnp.concatenate([jnp.ones((n,), jnp.int32),
-                                      jnp.full((n,), NULL_LABEL, jnp.int32)])
-
-            def velocity(a, i):
-                # conditional and unconditional branches in one batched forward pass
-                v = apply(pp["actor"], jnp.concatenate([a, a]), jnp.full((2 * n,), i), obs2,
-                          labels)
-                return flow.cfg_combine(v[n:], v[:n], pp["guidance"])
-        else:
-            null = jnp.full((n,), NULL_LABEL, jnp.int32)
-
-            def velocity(a, i):
-                return apply(pp["actor"], a, jnp.full((n,), i), obs_k, null)
-
-        a = flow.euler_sample(velocity, a0, self.cfg.flow_steps)
-        return jnp.clip(a, -1.0, 1.0).reshape(B, k, self.chunk_size)
+        return flow.sample_chunks(
+            lambda *a: self.actor_net.apply(pp["actor"], *a), obs, key, k, self.chunk_size,
+            self.cfg.flow_steps, pp["guidance"] if self.cfg.actor == "cfg_flow" else None)
 
     def act(self, pp: dict, obs: jax.Array, key: jax.Array) -> jax.Array:
         """The policy: obs [B, obs_dim] -> first action of the chosen chunk [B, act_dim]."""
-        chex.assert_rank(obs, 2)
+        check_obs(obs, self.obs_dim)
         B = obs.shape[0]
         if self.is_gaussian:
             mean, _ = self.actor_net.apply(pp["actor"], obs)
-            return mean.reshape(B, self.h, self.act_dim)[:, 0]
-        rule = self.cfg.selection if self.uses_critics else "first"
+            return check_act(obs, mean.reshape(B, self.h, self.act_dim)[:, 0], self.obs_dim,
+                             self.act_dim)
+        rule = self.cfg.selection
         k = 1 if rule == "first" else self.cfg.num_candidates
         cands = self.sample_chunks(pp, obs, key, k)
         if k == 1:
@@ -292,4 +383,5 @@ class Agent:
                   if rule == "safe_then_reward" else jnp.zeros_like(qc))
             idx = select_candidate(qc, qr, pp["threshold"], rule)
             chosen = jnp.take_along_axis(cands, idx[:, None, None], axis=1)[:, 0]
-        return chosen.reshape(B, self.h, self.act_dim)[:, 0]
+        return check_act(obs, chosen.reshape(B, self.h, self.act_dim)[:, 0], self.obs_dim,
+                         self.act_dim)

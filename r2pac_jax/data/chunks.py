@@ -58,9 +58,8 @@ class Batch(NamedTuple):
     zmax: jax.Array  # [B]
 
 
-def chunk_arrays(ds: Dataset, h: int, discount: float, reward_scale: float = 1.0,
-                 cost_scale: float = 1.0, keep_episodes: np.ndarray | None = None) -> dict:
-    """The per-start chunk quantities in numpy (used by `build_chunks`, and by tests)."""
+def check_chunk_len(ds: Dataset, h: int) -> None:
+    """ChunkError unless 1 <= h <= the dataset's longest episode."""
     if h < 1:
         raise ChunkError(f"chunk length h must be >= 1, got {h}")
     starts_ep, ends_ep = ds.episode_bounds()
@@ -68,6 +67,13 @@ def chunk_arrays(ds: Dataset, h: int, discount: float, reward_scale: float = 1.0
     if h > longest:
         raise ChunkError(f"chunk length {h} is longer than the longest episode ({longest} steps) "
                          f"of {ds.source}: choose --chunk-len <= {longest}")
+
+
+def chunk_arrays(ds: Dataset, h: int, discount: float, reward_scale: float = 1.0,
+                 cost_scale: float = 1.0, keep_episodes: np.ndarray | None = None) -> dict:
+    """The per-start chunk quantities in numpy (used by `build_chunks`, and by tests)."""
+    check_chunk_len(ds, h)
+    starts_ep, ends_ep = ds.episode_bounds()
     n = ds.size
     ep_id = np.repeat(np.arange(len(ends_ep)), ends_ep - starts_ep + 1)
     ep_end = ends_ep[ep_id]  # [N] last index of each row's episode

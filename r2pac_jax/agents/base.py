@@ -1,0 +1,149 @@
+"""The protocol every algorithm implements, and the pieces algorithms on h-step chunks share.
+
+An algorithm is a module under `agents/` with
+
+    CONFIG      frozen dataclass of its own keys (defaults = the quick preset's values)
+    PRESETS     {"paper": {...}, "quick": {...}}: its values per preset (its keys or generic ones)
+    VARIANTS    {"--algo name": {switches}}: the names it serves, as config values
+    FIXED       {generic key: value} it pins (a one-step cloner pins chunk_len=1); FIXED_WHY
+    HPARAMS     names of its scalars that may differ between vmapped lanes (sweep cells)
+    task_values(spec) -> dict, phases(agent_cfg) -> tuple, validate(agent_cfg),
+    check_hparams(values)
+    Agent(cfg, obs_dim, act_dim) implementing `Algorithm` below.
+
+The generic loop (`loop.py`) serves every algorithm unchanged: it samples batches through the
+agent's data view, vmaps `init` / blocks of `update` over lanes, checkpoints the state pytree,
+evaluates `act` on `policy_params`, and writes the same logs and results.
+"""
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import chex
+import jax
+from flax import struct
+
+from r2pac_jax.config import Config, ConfigError
+from r2pac_jax.data import chunks
+from r2pac_jax.data.dsrl import Dataset
+from r2pac_jax.tasks import TaskSpec
+
+
+class Algorithm(Protocol):
+    """What the loop needs of an agent. All methods are pure and jittable except `make_data`
+    and `check_data` (host side, once per run). `hp` is a dict of [] float32 scalars named by
+    the module's HPARAMS (vmapped to [L] by the loop)."""
+
+    cfg: Config
+    plot_metrics: tuple[str, ...]  # metric keys drawn in training.png
+
+    def check_data(self, task: TaskSpec, ds: Dataset) -> None:
+        """Raise ConfigError / ChunkError if the dataset cannot serve this algorithm (cheap)."""
+
+    def make_data(self, task: TaskSpec, ds: Dataset) -> Any:
+        """The device-side data view (a pytree), built once per run."""
+
+    def sample(self, data: Any, key: jax.Array) -> Any:
+        """One training batch from the data view."""
+
+    def init(self, key: jax.Array, hp: dict) -> Any:
+        """The training state: a flax struct with at least a `key` field (the loop splits it)."""
+
+    def begin_block(self, state: Any, hp: dict, data: Any) -> Any:
+        """Work done once per compiled block before its steps (R2PAC: the safety threshold)."""
+
+    def update(self, state: Any, batch: Any, hp: dict, phase: str) -> tuple[Any, dict]:
+        """One gradient step of `phase` -> (state, {name: [] metric})."""
+
+    def policy_params(self, state: Any, hp: dict) -> Any:
+        """Exactly what `act` needs (saved as the final policy)."""
+
+    def act(self, pp: Any, obs: jax.Array, key: jax.Array) -> jax.Array:
+        """The policy: obs [B, obs_dim] -> action [B, act_dim] in [-1, 1]."""
+
+    def summary(self, state: Any) -> dict:
+        """Per-run scalars worth reporting in results.json (e.g. the threshold), or {}."""
+
+
+@struct.dataclass
+class ActorState:
+    """The state of algorithms that train one actor network (the cloners)."""
+
+    params: dict  # {"actor": ...}
+    opt: dict  # {"actor": optimiser state}
+    step: jax.Array  # [] int32 gradient steps taken
+    key: jax.Array
+
+
+def check_obs(obs: jax.Array, obs_dim: int) -> None:
+    """chex check at the policy's entry: obs [B, obs_dim]."""
+    chex.assert_rank(obs, 2)
+    chex.assert_axis_dimension(obs, 1, obs_dim)
+
+
+def check_act(obs: jax.Array, action: jax.Array, obs_dim: int, act_dim: int) -> jax.Array:
+    """chex checks at the policy's border: obs [B, obs_dim] in, action [B, act_dim] out."""
+    check_obs(obs, obs_dim)
+    chex.assert_shape(action, (obs.shape[0], act_dim))
+    return action
+
+
+class ChunkAlgorithm:
+    """Base of algorithms trained on `data.chunks` (h = cfg.chunk_len; one-step ones pin h = 1).
+
+    Gives the data view (the dataset's h-step chunks, the safe subset when data_filter is safe),
+    the batch sampler, and no-op hooks."""
+
+    plot_metrics: tuple[str, ...] = ("loss_actor",)
+    threshold_subset: int = 1  # states kept for a dataset-wide statistic (R2PAC: its quantile)
+
+    def __init__(self, cfg: Config, obs_dim: int, act_dim: int):
+        self.cfg = cfg
+        self.obs_dim, self.act_dim, self.h = obs_dim, act_dim, cfg.chunk_len
+        self.chunk_size = cfg.chunk_len * act_dim
+
+    def keep_episodes(self, task: TaskSpec, ds: Dataset):
+        """[E] bool of the episodes trained on (None: all)."""
+        if self.cfg.data_filter != "safe":
+            return None
+        _, costs = ds.episode_sums()
+        keep = costs <= task.kappa
+        if not keep.any():
+            raise ConfigError(f"{self.cfg.algo}: the dataset {ds.source} has no episode with "
+                              f"cost <= kappa={task.kappa} (data_filter=safe needs one)")
+        return keep
+
+    def check_data(self, task: TaskSpec, ds: Dataset) -> None:
+        if ds.obs_dim != task.obs_dim or ds.act_dim != task.act_dim:
+            raise ConfigError(f"dataset {ds.source} has obs/act sizes {ds.obs_dim}/{ds.act_dim}, "
+                              f"task {task.name} needs {task.obs_dim}/{task.act_dim}")
+        self.keep_episodes(task, ds)
+        chunks.check_chunk_len(ds, self.cfg.chunk_len)
+
+    def make_data(self, task: TaskSpec, ds: Dataset) -> chunks.ChunkedData:
+        cfg = self.cfg
+        return chunks.build_chunks(ds, cfg.chunk_len, cfg.discount, cfg.reward_scale,
+                                   cfg.cost_scale, keep_episodes=self.keep_episodes(task, ds),
+                                   threshold_subset=self.threshold_subset)
+
+    def sample(self, data: chunks.ChunkedData, key: jax.Array) -> chunks.Batch:
+        return chunks.sample(data, key, self.cfg.batch_size)
+
+    def begin_block(self, state, hp: dict, data):
+        return state
+
+    def summary(self, state) -> dict:
+        return {}
+
+
+def no_hparams(values: dict) -> None:
+    """check_hparams of modules without vmappable scalars."""
+    if values:
+        raise ConfigError(f"this algorithm has no hyperparameters to vary across lanes; got "
+                          f"{sorted(values)}")
+
+
+def check_positive(name: str, value) -> None:
+    from r2pac_jax.config import check_range
+
+    check_range(name, value, 0.0, low_open=True)

@@ -1,0 +1,328 @@
+"""The training loop every algorithm shares: pure compiled blocks, and the run that drives them.
+
+The unit of compiled work is a *block*: the agent's `begin_block` (R2PAC refreshes its safety
+threshold), then `threshold_every` gradient steps in one `jax.lax.scan`, returning the block's
+mean metrics. Blocks are vmapped over *lanes* (seeds x scalar-hyperparameter cells, `lanes.py`),
+so a grid of seeds and hyperparameters trains as one compiled program. `make_train` chains every
+block of every phase into one scan (pure, no I/O); `Run` calls the same vmapped block from
+Python between evaluations and checkpoints so that a user gets progress, logs and resumability.
+Nothing here knows which algorithm it trains: that is `agents/`'s protocol (`agents/base.py`).
+"""
+from __future__ import annotations
+
+import functools
+import time
+from pathlib import Path
+from typing import Callable, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from r2pac_jax.agents import make_agent
+from r2pac_jax.config import Config, ConfigError, default_hparams
+from r2pac_jax.data.dsrl import Dataset
+from r2pac_jax.io import atomic_write_json, atomic_write_text, lock_directory
+from r2pac_jax.lanes import Lanes, place
+from r2pac_jax.tasks import TaskSpec
+
+
+class TrainingDiverged(RuntimeError):
+    """A block produced non-finite metrics; the last finite checkpoint is kept."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Pure pieces
+
+
+def make_data(cfg: Config, task: TaskSpec, ds: Dataset):
+    """The data view cfg's algorithm trains on (for R2PAC: h-step chunks; bc-safe: safe ones)."""
+    agent = make_agent(cfg, task.obs_dim, task.act_dim)
+    agent.check_data(task, ds)
+    return agent.make_data(task, ds)
+
+
+chunk_dataset = make_data  # the name of earlier releases
+
+
+def make_block(agent, phase: str) -> Callable:
+    """block(state, hp, data) -> (state, metrics): begin_block + `threshold_every` steps."""
+    cfg = agent.cfg
+
+    def block(state, hp: dict, data):
+        state = agent.begin_block(state, hp, data)
+
+        def step(s, _):
+            key, k_batch = jax.random.split(s.key)
+            batch = agent.sample(data, k_batch)
+            return agent.update(s.replace(key=key), batch, hp, phase)
+
+        state, metrics = jax.lax.scan(step, state, None, length=cfg.threshold_every)
+        return state, jax.tree_util.tree_map(jnp.mean, metrics)
+
+    return block
+
+
+def make_train(cfg: Config, data, obs_dim: int, act_dim: int):
+    """A pure `train(key, hp=None) -> (state, {phase: metrics[n_blocks]})`.
+
+    Every phase runs as one `lax.scan` over blocks; jit it and vmap it over keys and hp (a dict
+    of the algorithm's vmappable scalars, `config.default_hparams`) as you like. The dataset is
+    passed to the compiled function as an argument, not baked in.
+    """
+    agent = make_agent(cfg, obs_dim, act_dim)
+    blocks = {p: make_block(agent, p) for p in cfg.phases}
+    n_blocks = cfg.steps // cfg.threshold_every
+
+    def train_with_data(key, hp, data):
+        state = agent.init(key, hp)
+        metrics = {}
+        for phase in cfg.phases:
+            state, metrics[phase] = jax.lax.scan(
+                lambda s, _: blocks[phase](s, hp, data), state, None, length=n_blocks)
+        return state, metrics
+
+    def train(key, hp: Optional[dict] = None):
+        hp = default_hparams(cfg) if hp is None else hp
+        return train_with_data(key, hp, data)
+
+    train.agent = agent
+    train.with_data = train_with_data
+    return train
+
+
+@functools.lru_cache(maxsize=16)
+def compiled(cfg: Config, obs_dim: int, act_dim: int):
+    """Jitted, lane-vmapped pieces for a config, shared by every `Run` with the same config
+    (a resumed run or a sweep's next group reuses the compiled programs)."""
+    agent = make_agent(cfg, obs_dim, act_dim)
+    blocks = {p: jax.jit(jax.vmap(make_block(agent, p), in_axes=(0, 0, None)))
+              for p in cfg.phases}
+    return agent, jax.jit(jax.vmap(agent.init)), blocks, jax.jit(jax.vmap(agent.policy_params))
+
+
+@functools.lru_cache(maxsize=16)
+def lane_evaluator(cfg: Config, task: TaskSpec, episodes: int, physics: str):
+    from r2pac_jax.evaluate import LaneEvaluator
+
+    agent = compiled(cfg, task.obs_dim, task.act_dim)[0]
+    return LaneEvaluator(agent.act, task, episodes, physics=physics)
+
+
+def check_run(cfg: Config, task: TaskSpec, ds: Dataset) -> None:
+    """Everything about (config, dataset) that can be refused before any training starts."""
+    make_agent(cfg, task.obs_dim, task.act_dim).check_data(task, ds)
+
+
+def config_changes(old: Config, new: Config) -> list[str]:
+    """Flat keys whose values differ between two configs, as 'key: old -> new'."""
+    a, b = old.flat(), new.flat()
+    a.update(task=old.task, algo=old.algo)
+    b.update(task=new.task, algo=new.algo)
+    return [f"{k}: {a.get(k)!r} -> {b.get(k)!r}" for k in sorted(set(a) | set(b))
+            if a.get(k) != b.get(k)]
+
+
+# ---------------------------------------------------------------------------------------------
+# The run: blocks between evaluations and checkpoints
+
+
+class Run:
+    """Trains all lanes of one config on one dataset, with logs, evaluation and checkpoints."""
+
+    def __init__(self, cfg: Config, task: TaskSpec, ds: Dataset, out_dir, lanes: Lanes,
+                 physics: str = "auto", progress: bool = True, log: Callable[[str], None] = print,
+                 dataset_label: str = ""):
+        self.cfg, self.task, self.lanes = cfg, task, lanes
+        self.out = Path(out_dir)
+        self.physics = physics
+        self.progress = progress
+        self.log = log
+        self.dataset_label = dataset_label or ds.source
+        self.agent, self._init, self._blocks, self._policy_params = compiled(
+            cfg, task.obs_dim, task.act_dim)
+        self.agent.check_data(task, ds)
+        self.data = self.agent.make_data(task, ds)
+        self.evaluator = (lane_evaluator(cfg, task, cfg.eval_episodes, physics)
+                          if cfg.eval_episodes > 0 else None)
+
+    # schedule ---------------------------------------------------------------------------------
+    @property
+    def schedule(self) -> list[tuple[str, int]]:
+        """(phase, step within phase after the block) for every block of the run."""
+        n = self.cfg.steps // self.cfg.threshold_every
+        return [(p, (i + 1) * self.cfg.threshold_every) for p in self.cfg.phases for i in range(n)]
+
+    def _evaluates(self, phase: str, phase_step: int, last: bool) -> bool:
+        if self.evaluator is None or phase == "critic":
+            return False
+        return last or phase_step % self.cfg.eval_every == 0
+
+    def init_state(self):
+        return place(self._init(self.lanes.init_keys(), self.lanes.hp), self.lanes.size)
+
+    def evaluate(self, state, step: int) -> dict:
+        from r2pac_jax.evaluate import eval_keys
+
+        pp = self._policy_params(state, self.lanes.hp)
+        return self.evaluator(pp, eval_keys(self.lanes.seeds, step))
+
+    # main loop ---------------------------------------------------------------------------------
+    def run(self, resume: bool = False, stop_after: Optional[int] = None) -> Optional[dict]:
+        """Train to the end (or stop after `stop_after` blocks, as an interruption would, and
+        return None); with `resume`, continue from the latest checkpoint in the run directory.
+        The directory is locked meanwhile: a second live process on it gets DirectoryBusy."""
+        lock = lock_directory(self.out)
+        try:
+            return self._run(resume, stop_after)
+        finally:
+            lock.close()
+
+    def _check_same_run(self) -> None:
+        """A resumed run must be the run that was started: same config, seeds and cells."""
+        from r2pac_jax.policy import read_run
+
+        try:
+            old_cfg, old_lanes = read_run(self.out)
+        except FileNotFoundError:
+            return
+        diff = config_changes(old_cfg, self.cfg)
+        for k in ("seeds", "cell_hparams"):
+            if old_lanes.get(k) != getattr(self.lanes, k):
+                diff.append(f"{k}: {old_lanes.get(k)} -> {getattr(self.lanes, k)}")
+        if diff:
+            raise ConfigError(f"--resume: {self.out} was started with other settings ("
+                              f"{'; '.join(diff)}); resume it with the options it was started "
+                              "with, or choose another --out")
+
+    def _run(self, resume: bool, stop_after: Optional[int]) -> Optional[dict]:
+        from r2pac_jax.checkpoint import Checkpointer
+        from r2pac_jax.metrics_log import MetricsLog
+
+        cfg = self.cfg
+        self.out.mkdir(parents=True, exist_ok=True)
+        ckpt = Checkpointer(self.out / "checkpoints")
+        state = self.init_state()
+        done_blocks = 0
+        resume_step = None
+        if resume:
+            latest = ckpt.latest_step()
+            if latest is not None:
+                self._check_same_run()
+                state, meta = ckpt.restore(latest, state)
+                state = place(state, self.lanes.size)
+                done_blocks = int(meta["blocks_done"])
+                resume_step = latest
+                self.log(f"resuming {self.out} from step {latest}")
+        elif ckpt.latest_step() is not None:
+            raise ConfigError(f"{self.out} already holds a run (checkpoint at step "
+                              f"{ckpt.latest_step()}); pass --resume to continue it or choose "
+                              "another --out")
+        atomic_write_text(self.out / "config.json", cfg.to_json())
+        atomic_write_json(self.out / "lanes.json", dict(
+            seeds=self.lanes.seeds, cells=self.lanes.cells, cell_hparams=self.lanes.cell_hparams,
+            task=self.task.name, dataset=self.dataset_label, physics=self.physics))
+        logs = MetricsLog(self.out, resume_step=resume_step)
+        hp = place(self.lanes.hp, self.lanes.size)
+        schedule = self.schedule
+        total = len(schedule) * cfg.threshold_every
+        bar = None
+        if self.progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=total, initial=done_blocks * cfg.threshold_every, unit="step",
+                       desc=f"{self.task.name} {cfg.algo}", dynamic_ncols=True, smoothing=0.1)
+        last_eval = None
+        t_start = time.time()
+        steps_timed = 0
+        try:
+            for i in range(done_blocks, len(schedule)):
+                if stop_after is not None and i - done_blocks >= stop_after:
+                    return None
+                phase, phase_step = schedule[i]
+                step = (i + 1) * cfg.threshold_every
+                t0 = time.time()
+                state, metrics = self._blocks[phase](state, hp, self.data)
+                metrics = jax.tree_util.tree_map(np.asarray, metrics)  # waits for the block
+                dt = time.time() - t0
+                steps_timed += cfg.threshold_every
+                for lane in range(self.lanes.size):
+                    row = {k: float(v[lane]) for k, v in metrics.items()}
+                    row.update(step=step, phase=phase, lane=lane, seed=self.lanes.seeds[lane],
+                               steps_per_s=cfg.threshold_every / dt)
+                    logs.write("metrics", row, tb_prefix=f"train/lane{lane}")
+                self._check_finite(metrics, step, ckpt.latest_step())
+                last = i == len(schedule) - 1
+                if self._evaluates(phase, phase_step, last):
+                    res = self.evaluate(state, step)
+                    last_eval = res
+                    for lane in range(self.lanes.size):
+                        logs.write("eval", dict(
+                            step=step, lane=lane, seed=self.lanes.seeds[lane],
+                            normalized_reward=float(res["normalized_reward"][lane]),
+                            normalized_cost=float(res["normalized_cost"][lane]),
+                            mean_return=float(res["returns"][lane].mean()),
+                            mean_cost=float(res["costs"][lane].mean())),
+                            tb_prefix=f"eval/lane{lane}")
+                if last or step % cfg.checkpoint_every == 0:
+                    ckpt.save(step, state, {"blocks_done": i + 1, "step": step})
+                if bar is not None:
+                    post = {"phase": phase}
+                    if "threshold" in metrics:
+                        post["l"] = f"{float(np.mean(metrics['threshold'])):.3g}"
+                    if last_eval is not None:
+                        post["rew"] = f"{float(np.mean(last_eval['normalized_reward'])):.2f}"
+                        post["cost"] = f"{float(np.mean(last_eval['normalized_cost'])):.2f}"
+                    bar.set_postfix(post, refresh=False)
+                    bar.update(cfg.threshold_every)
+            if bar is not None:
+                bar.close()
+                bar = None
+            wall = time.time() - t_start
+            if last_eval is None and self.evaluator is not None:  # resumed after the last block
+                last_eval = self.evaluate(state, total)
+            self.save_policy(state)
+            results = self.results(state, last_eval, wall, steps_timed)
+            atomic_write_json(self.out / "results.json", results)
+            self.plot(logs)
+            return results
+        finally:
+            if bar is not None:
+                bar.close()
+            logs.close()
+            ckpt.close()
+
+    def _check_finite(self, metrics: dict, step: int, last_good: Optional[int]) -> None:
+        bad = {k: [int(x) for x in np.flatnonzero(~np.isfinite(v))] for k, v in metrics.items()}
+        bad = {k: v for k, v in bad.items() if v}
+        if bad:
+            lanes = sorted({lane for v in bad.values() for lane in v})
+            seeds = [self.lanes.seeds[i] for i in lanes]
+            kept = (f"the last checkpoint (step {last_good}) is kept" if last_good is not None
+                    else "no checkpoint was written")
+            raise TrainingDiverged(
+                f"{self.task.name} {self.cfg.algo}: non-finite {', '.join(sorted(bad))} in the "
+                f"block ending at step {step} (lanes {lanes}, seeds {seeds}); training stopped and "
+                f"{kept}. Lower the learning rate (--set lr=...) or check the dataset for "
+                "non-finite values")
+
+    def save_policy(self, state) -> None:
+        """The final policy parameters of every lane (what `load_policy` reads)."""
+        from r2pac_jax.checkpoint import save_policy
+
+        save_policy(self.out / "policy", self.cfg.total_steps,
+                    self._policy_params(state, self.lanes.hp),
+                    {"task": self.task.name, "algo": self.cfg.algo, "lanes": self.lanes.size,
+                     "obs_dim": self.task.obs_dim, "act_dim": self.task.act_dim})
+
+    def results(self, state, ev: Optional[dict], wall: float, steps: int) -> dict:
+        from r2pac_jax.results import run_results
+
+        return run_results(self.cfg, self.task.name, self.lanes, self.agent.summary(state), ev,
+                           wall, steps, self.dataset_label, self.physics)
+
+    def plot(self, logs) -> None:
+        from r2pac_jax.report import plot_run
+
+        plot_run(logs, self.out, f"{self.task.name} {self.cfg.algo}", self.agent.plot_metrics)
+

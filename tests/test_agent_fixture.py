@@ -1,0 +1,61 @@
+"""Every algorithm of the pre-protocol code (a022372) reproduces bitwise through the protocol.
+
+The fixture `fixtures/agents_a022372.npz` was made by `fixtures/make_agent_fixture.py` at that
+commit (its docstring says how to make it again). Bitwise equality is a promise for the same
+machine kind and jax version as the fixture's; on another jax version the arrays must still
+agree to float tolerance (and the test says which comparison it made).
+"""
+import json
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+HERE = Path(__file__).parent / "fixtures"
+sys.path.insert(0, str(HERE))
+
+import make_agent_fixture as fx  # noqa: E402
+
+# Leaves of the old single Agent class that the cloners' own state no longer carries: the
+# flow cloners never had critics, so their threshold was a constant 0.
+DROPPED = {"bc-all": {"state.threshold"}, "bc-safe": {"state.threshold"}}
+
+
+@pytest.fixture(scope="module")
+def reference():
+    ref = np.load(HERE / "agents_a022372.npz")
+    meta = json.loads(bytes(ref["__meta__"]).decode())
+    return ref, meta
+
+
+@pytest.fixture(scope="module")
+def current(reference):
+    _, meta = reference
+    ds = fx.dataset()
+    assert fx.dataset_digest(ds) == meta["dataset_sha256"], (
+        "the generated ReachAvoid dataset changed since the fixture was made: the fixture no "
+        "longer pins the agents; make it again at a commit with the old agents and new data")
+    return fx.record(ds)
+
+
+def test_every_algorithm_reproduces_the_pre_protocol_fixture(reference, current):
+    ref, meta = reference
+    exact = meta["jax"] == jax.__version__ and meta["backend"] == jax.default_backend()
+    ref_keys = {k for k in ref.files if k != "__meta__"}
+    missing = ref_keys - set(current)
+    allowed = {f"{a}/{leaf}" for a, leaves in DROPPED.items() for leaf in leaves}
+    assert missing <= allowed, sorted(missing - allowed)[:10]
+    extra = set(current) - ref_keys
+    assert not extra, sorted(extra)[:10]
+    assert len(ref_keys & set(current)) > 800
+    for k in sorted(ref_keys & set(current)):
+        a, b = np.asarray(current[k]), ref[k]
+        assert a.shape == b.shape and a.dtype == b.dtype, k
+        if exact:
+            np.testing.assert_array_equal(a, b, err_msg=k)
+        else:
+            np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5, err_msg=k)
+    for a in meta["algos"]:
+        assert any(k.startswith(f"{a}/act/") for k in current), a
