@@ -68,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
                                              "evaluate it with DSRL's scores.")
     ap.add_argument("--task", required=True, help="task name or DSRL id (e.g. ReachAvoid, CarGoal2)")
     ap.add_argument("--algo", default="r2pac", help=f"one of {', '.join(algo_names())}")
-    ap.add_argument("--baselines", default="bc-all,bc-safe",
+    ap.add_argument("--baselines", default="bc-all,bc-safe,bc-safe-mlp",
                     help="comma-separated algos trained after --algo on the same data for the "
                          "comparison table ('none' to skip)")
     ap.add_argument("--preset", default="auto", help="auto | paper | quick (auto: paper on an "
