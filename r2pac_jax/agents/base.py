@@ -147,3 +147,19 @@ def check_positive(name: str, value) -> None:
     from r2pac_jax.config import check_range
 
     check_range(name, value, 0.0, low_open=True)
+
+
+def check_sizes(name: str, sizes) -> None:
+    """Hidden layer sizes: a non-empty tuple of ints >= 1."""
+    if not sizes or min(sizes) < 1:
+        raise ConfigError(f"{name} must be a non-empty list of sizes >= 1, got {sizes}")
+
+
+def no_task_values(spec) -> dict:
+    """task_values of modules that take nothing from the task registry."""
+    return {}
+
+
+def actor_only(agent_cfg) -> tuple[str, ...]:
+    """phases of modules that train one network from the first step."""
+    return ("actor",)

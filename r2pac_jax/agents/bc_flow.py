@@ -14,8 +14,8 @@ import jax.numpy as jnp
 import optax
 
 from r2pac_jax.agents import flow
-from r2pac_jax.agents.base import (ActorState, ChunkAlgorithm, check_act, check_obs,
-                                   check_positive, no_hparams)
+from r2pac_jax.agents.base import (ActorState, ChunkAlgorithm, actor_only, check_act, check_obs,
+                                   check_positive, check_sizes, no_hparams, no_task_values)
 from r2pac_jax.config import ConfigError
 from r2pac_jax.data.chunks import Batch
 from r2pac_jax.nets import NULL_LABEL, VelocityField
@@ -38,14 +38,8 @@ FIXED: dict = {}
 FIXED_WHY: dict = {}
 HPARAMS: tuple = ()
 check_hparams = no_hparams
-
-
-def task_values(spec) -> dict:
-    return {}
-
-
-def phases(c: BCFlowConfig) -> tuple[str, ...]:
-    return ("actor",)
+task_values = no_task_values
+phases = actor_only
 
 
 def validate(c: BCFlowConfig) -> None:
@@ -53,8 +47,7 @@ def validate(c: BCFlowConfig) -> None:
     for k in ("flow_steps", "time_embed_dim"):
         if getattr(c, k) < 1:
             raise ConfigError(f"{k} must be >= 1, got {getattr(c, k)}")
-    if not c.hidden_dims or min(c.hidden_dims) < 1:
-        raise ConfigError(f"hidden_dims must be a non-empty list of sizes >= 1, got {c.hidden_dims}")
+    check_sizes("hidden_dims", c.hidden_dims)
 
 
 class Agent(ChunkAlgorithm):

@@ -14,9 +14,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from r2pac_jax.agents.base import (ActorState, ChunkAlgorithm, check_act, check_obs,
-                                   check_positive, no_hparams)
-from r2pac_jax.config import ConfigError
+from r2pac_jax.agents.base import (ActorState, ChunkAlgorithm, actor_only, check_act, check_obs,
+                                   check_positive, check_sizes, no_hparams, no_task_values)
 from r2pac_jax.data.chunks import Batch
 from r2pac_jax.nets import DeterministicActor
 
@@ -36,20 +35,13 @@ FIXED = {"chunk_len": 1}
 FIXED_WHY = {"chunk_len": "clones one action per step"}
 HPARAMS: tuple = ()
 check_hparams = no_hparams
-
-
-def task_values(spec) -> dict:
-    return {}
-
-
-def phases(c: MLPBCConfig) -> tuple[str, ...]:
-    return ("actor",)
+task_values = no_task_values
+phases = actor_only
 
 
 def validate(c: MLPBCConfig) -> None:
     check_positive("lr", c.lr)
-    if not c.hidden_dims or min(c.hidden_dims) < 1:
-        raise ConfigError(f"hidden_dims must be a non-empty list of sizes >= 1, got {c.hidden_dims}")
+    check_sizes("hidden_dims", c.hidden_dims)
 
 
 class Agent(ChunkAlgorithm):

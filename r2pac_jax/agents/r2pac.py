@@ -18,7 +18,7 @@ import optax
 from flax import struct
 
 from r2pac_jax.agents import critics, extraction, flow, gaussian
-from r2pac_jax.agents.base import ChunkAlgorithm, check_act, check_obs, check_positive
+from r2pac_jax.agents.base import ChunkAlgorithm, check_act, check_obs, check_positive, check_sizes
 from r2pac_jax.agents.selection import select_candidate
 from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data.chunks import Batch, ChunkedData
@@ -130,9 +130,8 @@ def validate(c: R2PACConfig) -> None:
               "time_embed_dim"):
         if getattr(c, k) < 1:
             raise ConfigError(f"{k} must be >= 1, got {getattr(c, k)}")
-    if not c.hidden_dims or not c.actor_hidden_dims or min(c.hidden_dims + c.actor_hidden_dims) < 1:
-        raise ConfigError(f"hidden_dims / actor_hidden_dims must be non-empty lists of sizes >= 1, "
-                          f"got {c.hidden_dims} / {c.actor_hidden_dims}")
+    check_sizes("hidden_dims", c.hidden_dims)
+    check_sizes("actor_hidden_dims", c.actor_hidden_dims)
 
 
 @struct.dataclass
