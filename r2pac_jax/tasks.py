@@ -22,6 +22,31 @@ class EnvUnavailableError(RuntimeError):
 
 
 @dataclasses.dataclass(frozen=True)
+class CollectionSpec:
+    """How DSRL collected a task's data (scripts/train_trpol_v0.py, dsrl/infos.py): a Lagrangian
+    agent trained `epochs` x `steps_per_epoch` env steps while its cost limit moved from
+    `cost_start` (until epoch `epoch_start`) linearly to `cost_end` (from epoch `epoch_end`);
+    trajectories kept along training with cost <= `cost_cap` and return >= `reward_min`, thinned
+    to `trajectories` (DSRL's file size). `ppo` overrides PPOLagConfig values for the task."""
+
+    cost_start: float
+    cost_end: float
+    epoch_start: int
+    epoch_end: int
+    epochs: int
+    cost_cap: float
+    trajectories: int
+    reward_min: float = -float("inf")
+    steps_per_epoch: int = 10_000
+    ppo: tuple = ()  # (key, value) pairs
+
+    @property
+    def env_steps(self) -> int:
+        """DSRL's RL budget in env steps."""
+        return self.epochs * self.steps_per_epoch
+
+
+@dataclasses.dataclass(frozen=True)
 class TaskSpec:
     """Constants of one task. Scores use DSRL's R_min/R_max and kappa (see evaluate.py)."""
 
@@ -43,6 +68,7 @@ class TaskSpec:
     env_factory: Optional[str] = None  # "module:function(physics=...) -> Env", imported lazily
     dsrl_trajectories: Optional[int] = None
     extras: tuple = ()  # family-specific constants as (key, value) pairs
+    collection: Optional[CollectionSpec] = None  # the learned-behaviour data recipe
 
     def extra(self, key: str, default: Any = None) -> Any:
         return dict(self.extras).get(key, default)
@@ -97,6 +123,13 @@ def set_env_factory(name: str, factory: str) -> None:
     """Attach an environment factory ("module:function") to a registered task."""
     spec = get_task(name)
     TASKS[spec.name] = dataclasses.replace(spec, env_factory=factory)
+
+
+def set_collection(name: str, collection: CollectionSpec) -> None:
+    """Attach the learned-behaviour data recipe to a registered task."""
+    spec = get_task(name)
+    TASKS[spec.name] = dataclasses.replace(spec, collection=collection,
+                                           dsrl_trajectories=collection.trajectories)
 
 
 # --------------------------------------------------------------------------------------------
@@ -189,3 +222,35 @@ _bullet("AntCircle", 500, 34, 8, 460.7091979980469, 0.0177031010389328, 5728, 0.
 _bullet("BallCircle", 200, 8, 2, 881.46337890625, 0.38312244415283203, 886, 0.85, 1.0)
 _bullet("CarCircle", 300, 8, 2, 534.3060913085938, 3.484419822692871, 1450, 0.9, 1.0)
 _bullet("DroneCircle", 300, 18, 4, 996.38916015625, 207.794189453125, 1923, 0.7, 1.0)
+
+# --------------------------------------------------------------------------------------------
+# DSRL's collection recipe per task (scripts/train_trpol_v0.py: cost_start, cost_end,
+# epoch_start, epoch_end, epoch; 10k env steps per epoch; dsrl/infos.py's file names: the cost
+# cap and the trajectory count; rmin 0 for the navigation tasks). ReachAvoid's is this
+# project's own (4 kappa -> kappa / 2 over 1.5M steps, 64 episodes of 80 steps per update).
+for _n, _cs, _ce, _es, _ee, _ep, _cap, _traj in [
+    ("CarButton1", 200, 10, 400, 2000, 2200, 250, 2656),
+    ("CarButton2", 300, 10, 400, 3000, 3500, 300, 3755),
+    ("CarPush1", 150, 10, 500, 3500, 4000, 200, 2871),
+    ("CarPush2", 200, 10, 500, 3500, 4000, 250, 4407),
+    ("CarGoal1", 80, 5, 200, 1000, 1200, 120, 1671),
+    ("CarGoal2", 180, 5, 400, 2000, 2200, 200, 4105),
+    ("PointGoal1", 80, 5, 200, 1500, 1800, 100, 2022),
+    ("PointGoal2", 180, 5, 400, 2000, 2200, 200, 3442),
+    ("PointButton1", 150, 5, 200, 1800, 2000, 200, 2268),
+    ("PointButton2", 200, 5, 800, 3000, 3200, 250, 3288),
+    ("PointPush1", 100, 5, 400, 2500, 2800, 150, 2379),
+    ("PointPush2", 150, 5, 500, 2500, 2800, 200, 3242),
+]:
+    set_collection(_n, CollectionSpec(_cs, _ce, _es, _ee, _ep, _cap, _traj, reward_min=0.0))
+for _n, _es, _ee, _ep, _cap, _traj in [
+    ("AntVelocity", 700, 3000, 3500, 250, 2249),
+    ("HalfCheetahVelocity", 300, 2500, 3000, 250, 2495),
+    ("HopperVelocity", 400, 2500, 3000, 250, 2240),
+    ("SwimmerVelocity", 500, 2500, 3000, 200, 1686),
+    ("Walker2dVelocity", 600, 3000, 3500, 300, 2729),
+]:
+    set_collection(_n, CollectionSpec(300, 10, _es, _ee, _ep, _cap, _traj))
+set_collection("ReachAvoid", CollectionSpec(
+    8.0, 1.0, 30, 270, 300, cost_cap=80.0, trajectories=1000, steps_per_epoch=64 * 80,
+    ppo=(("num_envs", 64), ("rollout_len", 80))))

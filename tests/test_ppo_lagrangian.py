@@ -1,19 +1,28 @@
-"""The PPO-Lagrangian data source (DSRL's recipe): GAE, the multiplier, the annealed limit,
-a tiny run on ReachAvoid (valid DSRL data, deterministic), and its errors."""
-import types
+"""The learned-behaviour data source (DSRL's recipe): GAE, the PID multiplier, the schedule, the
+resumable generation on both rollout paths (JAX scan on ReachAvoid, C MuJoCo on a velocity task),
+its files and its errors."""
+import json
 
 import chex
+import h5py
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from r2pac_jax.data import factory
-from r2pac_jax.data.dsrl import validate
+from r2pac_jax.data.dsrl import DatasetError
+from r2pac_jax.data.factory import collect
 from r2pac_jax.data.factory import ppo_lagrangian as pl
+from r2pac_jax.io import DirectoryBusy
 from r2pac_jax.tasks import get_task
 
-TINY = dict(num_envs=8, rollout_len=40, updates=6, epochs=2, minibatches=2, hidden=(16,),
-            snapshots=3)
+RA = dict(trajectories=12, env_steps=16 * 80 * 4, ppo=dict(num_envs=16, rollout_len=80,
+                                                           hidden=(16,), minibatches=2, epochs=2),
+          checkpoint_every=1, progress=False, log=lambda m: None)
+# Hopper falls within tens of steps under a random policy: episodes cross update boundaries
+HOP = dict(trajectories=6, env_steps=2 * 60 * 3, ppo=dict(num_envs=2, rollout_len=60,
+                                                          hidden=(16,), minibatches=2, epochs=1),
+           checkpoint_every=1, progress=False, log=lambda m: None)
 
 
 def _col(x):
@@ -34,75 +43,163 @@ def test_gae_bootstraps_a_time_limit_but_not_a_terminal():
     chex.assert_trees_all_close(adv[0, 0], jnp.array(1.0))
 
 
-def test_multiplier_and_annealed_limit():
-    chex.assert_trees_all_close(pl.lagrange_update(jnp.array(1.0), 5.0, 3.0, 0.1), jnp.array(1.2))
-    chex.assert_trees_all_close(pl.lagrange_update(jnp.array(0.1), 0.0, 3.0, 0.1), jnp.array(0.0))
-    cfg = pl.PPOLagConfig(updates=11, limit_start=20.0, limit_end=2.0)
-    assert pl.cost_limit(0, cfg) == 20.0 and pl.cost_limit(10, cfg) == pytest.approx(2.0)
-    assert pl.cost_limit(5, cfg) == pytest.approx(11.0)
+def test_pid_multiplier_as_dsrl():
+    gains = (0.05, 0.005, 0.1)
+    st, lam = pl.pid_multiplier((0.0, 0.0), 30.0, 10.0, gains)  # error 20, rising by 20
+    assert st == (20.0, 20.0) and lam == pytest.approx(0.05 * 20 + 0.005 * 20 + 0.1 * 20)
+    st, lam = pl.pid_multiplier(st, 15.0, 10.0, gains)  # error 5, falling: no derivative term
+    assert st == (25.0, 5.0) and lam == pytest.approx(0.05 * 5 + 0.005 * 25)
+    st, lam = pl.pid_multiplier(st, 0.0, 10.0, gains)  # below the limit: integral unwinds
+    assert st == (15.0, -10.0) and lam == pytest.approx(0.005 * 15)
+    st, lam = pl.pid_multiplier((0.0, 0.0), 0.0, 10.0, gains)
+    assert lam == 0.0 and st[0] == 0.0
 
 
-def test_tiny_run_on_reach_avoid_is_valid_dsrl_and_deterministic():
-    task = get_task("ReachAvoid")
-    cfg = pl.PPOLagConfig(limit_start=8.0, limit_end=1.0, **TINY)
-    a = pl.generate(task, 7, seed=3, cfg=cfg, log=lambda m: None)
-    ds = validate(a, "ppo", task.obs_dim, task.act_dim, task.name)
-    rets, costs = ds.episode_sums()
-    assert len(rets) == 7
-    assert np.all(np.abs(a["actions"]) <= 1.0)
-    b = pl.generate(task, 7, seed=3, cfg=cfg, log=lambda m: None)
+def test_dsrl_schedule_and_its_errors():
+    s = pl.CostSchedule(180.0, 5.0, 4_000_000, 20_000_000)  # CarGoal2: epochs 400 -> 2000
+    assert s.limit(0) == 180.0 and s.limit(4_000_000) == 180.0
+    assert s.limit(12_000_000) == pytest.approx(92.5)
+    assert s.limit(20_000_000) == pytest.approx(5.0) and s.limit(22_000_000) == pytest.approx(5.0)
+    rising = pl.CostSchedule(5.0, 100.0, 0, 10)  # Bullet tasks raise it
+    assert rising.limit(5) == pytest.approx(52.5)
+    with pytest.raises(DatasetError, match="limits must be > 0"):
+        pl.CostSchedule(0.0, 5.0, 0, 10)
+    with pytest.raises(DatasetError, match="start_step < end_step"):
+        pl.CostSchedule(10.0, 5.0, 10, 10)
+    t = get_task("CarGoal2")
+    full = collect.make_spec(t)
+    assert (full.env_steps, full.trajectories, full.cost_cap) == (22_000_000, 4105, 200.0)
+    assert (full.schedule.start_step, full.schedule.end_step) == (4_000_000, 20_000_000)
+    assert full.steps_per_update == 10_000 and full.updates == 2200
+    half = collect.make_spec(t, env_steps=11_000_000)  # a smaller budget scales the schedule
+    assert (half.schedule.start_step, half.schedule.end_step) == (2_000_000, 10_000_000)
+    with pytest.raises(DatasetError, match="minibatches"):
+        collect.make_spec(t, ppo=dict(num_envs=3, rollout_len=7, minibatches=4))
+
+
+def _arrays(path):
+    with h5py.File(path, "r") as f:
+        return {k: np.asarray(f[k]) for k in f.keys()}
+
+
+@pytest.mark.parametrize("name,kw", [("ReachAvoid", RA), ("HopperVelocity", HOP)])
+def test_resumed_generation_equals_an_uninterrupted_one(name, kw, tmp_path):
+    task = get_task(name)
+    full = collect.generate_learned(task, tmp_path / "full.hdf5", **kw)
+    part = tmp_path / "part.hdf5"
+    assert collect.generate_learned(task, part, stop_after=1, **kw) is None  # killed
+    assert (tmp_path / "part.hdf5.partial" / "state.pkl").exists() and not part.exists()
+    assert collect.generate_learned(task, part, stop_after=1, **kw) is None  # and again
+    assert collect.generate_learned(task, part, **kw) == part
+    a, b = _arrays(full), _arrays(part)
+    assert set(a) == set(b)
     for k in a:
-        np.testing.assert_array_equal(a[k], b[k])
-    c = pl.generate(task, 7, seed=4, cfg=cfg, log=lambda m: None)
-    assert not np.array_equal(a["observations"], c["observations"])
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    card = json.loads(factory.card_path(part).read_text())
+    assert card["data_version"] == 2 and card["source"] == "ppo-lagrangian"
+    assert card["budget_below_dsrl"] and card["trajectories"] <= kw["trajectories"]
+    assert card["generation"]["updates"] == kw["env_steps"] // (
+        kw["ppo"]["num_envs"] * kw["ppo"]["rollout_len"])
+    log = [json.loads(ln) for ln in part.with_suffix(".log.jsonl").read_text().splitlines()]
+    assert [r["update"] for r in log] == list(range(1, card["generation"]["updates"] + 1))
+    assert part.with_suffix(".training.png").exists() and part.with_suffix(".png").exists()
+    assert not (tmp_path / "part.hdf5.partial").exists()  # cleaned up once the file exists
+    # episodes are whole: each ends in a terminal or a timeout, and costs respect the cap
+    ends = np.flatnonzero(a["terminals"] | a["timeouts"])
+    assert ends[-1] == a["rewards"].size - 1
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    assert np.all(np.add.reduceat(a["costs"], starts) <= task.collection.cost_cap)
+    if name == "HopperVelocity":  # terminals (falls) seen, next_obs continues obs within episodes
+        assert a["terminals"].any()
+        inner = np.setdiff1d(np.arange(a["rewards"].size - 1), ends)
+        np.testing.assert_array_equal(a["next_observations"][inner], a["observations"][inner + 1])
 
 
-def test_training_metrics_and_snapshots():
+def test_kill_between_checkpoints_discards_the_episodes_after_the_last_one(tmp_path):
     task = get_task("ReachAvoid")
-    cfg = pl.PPOLagConfig(limit_start=8.0, limit_end=1.0, **TINY)
-    import jax
-
-    train = pl.make_train(task.make_env(), cfg)
-    snaps, m = jax.jit(train)(jax.random.PRNGKey(0))
-    assert jax.tree_util.tree_leaves(snaps)[0].shape[0] == cfg.snapshots
-    for k in ("episode_return", "episode_cost", "lagrange", "cost_limit", "policy_loss"):
-        assert m[k].shape == (cfg.updates,) and np.all(np.isfinite(np.asarray(m[k])))
-    assert np.all(np.asarray(m["lagrange"]) >= 0.0)
-    np.testing.assert_allclose(np.asarray(m["cost_limit"])[[0, -1]], [8.0, 1.0], rtol=1e-6)
-
-
-def test_refuses_non_jax_physics_with_the_fix():
-    fake = types.SimpleNamespace(is_jax=False, name="CarGoal2")
-    with pytest.raises(ValueError, match="physics='mjx'"):
-        pl.make_train(fake, pl.PPOLagConfig())
-    with pytest.raises(factory.FactoryError, match="--physics mjx"):
-        factory.generate_dataset(get_task("CarGoal2"), 4, source="ppo-lagrangian",
-                                 physics="mujoco")
-    with pytest.raises(factory.FactoryError, match="unknown data source"):
-        factory.generate_dataset(get_task("ReachAvoid"), 4, source="sac")
+    kw = dict(RA, env_steps=16 * 80 * 5, checkpoint_every=2)
+    full = collect.generate_learned(task, tmp_path / "full.hdf5", **kw)
+    part = tmp_path / "part.hdf5"
+    assert collect.generate_learned(task, part, stop_after=3, **kw) is None  # checkpoint at 2
+    episodes = tmp_path / "part.hdf5.partial" / "episodes"
+    n_after_3 = len(list(episodes.glob("ep-*.npz")))
+    assert collect.generate_learned(task, part, stop_after=0, **kw) is None  # resume only
+    assert len(list(episodes.glob("ep-*.npz"))) < n_after_3  # update 3's episodes are gone
+    assert collect.generate_learned(task, part, **kw) == part
+    a, b = _arrays(full), _arrays(part)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
 
 
-def test_factory_writes_a_separately_named_dataset(tmp_path, monkeypatch):
+def test_generation_refuses_changes_a_second_writer_and_force_discards(tmp_path, monkeypatch):
+    task = get_task("ReachAvoid")
+    path = tmp_path / "g.hdf5"
+    assert collect.generate_learned(task, path, stop_after=1, **RA) is None
+    other = dict(RA, trajectories=13)
+    with pytest.raises(DatasetError, match="other settings .*trajectories: 12 -> 13"):
+        collect.generate_learned(task, path, **other)
+    from r2pac_jax.io import lock_directory
+
+    held = lock_directory(tmp_path / "g.hdf5.partial")
+    try:
+        with pytest.raises(DirectoryBusy):
+            collect.generate_learned(task, path, **RA)
+    finally:
+        held.close()
+    monkeypatch.setenv("R2PAC_DATA_DIR", str(tmp_path / "cache"))
+    p = factory.dataset_path(task, 0, 12, "ppo-lagrangian", RA["env_steps"])
+    assert p.name == f"ReachAvoid-generated-ppolag-v2-s0-n12-b{RA['env_steps']}.hdf5"
+    kw = {k: v for k, v in RA.items() if k not in ("trajectories", "env_steps", "progress")}
+    assert factory.generate_dataset(task, 12, 0, source="ppo-lagrangian",
+                                    env_steps=RA["env_steps"], stop_after=1, **kw) is None
+    state = p.parent / f"{p.name}.partial" / "state.pkl"
+    assert state.exists()
+    # --force with other settings: the old partial state is discarded, not refused
+    kw2 = dict(kw, ppo=dict(RA["ppo"], epochs=1))
+    assert factory.generate_dataset(task, 12, 0, source="ppo-lagrangian",
+                                    env_steps=RA["env_steps"], force=True, stop_after=1,
+                                    **kw2) is None
+    spec = json.loads((p.parent / f"{p.name}.partial" / "spec.json").read_text())
+    assert spec["ppo"]["epochs"] == 1
+    assert factory.find_cached(task) is None  # train's automatic lookup takes scripted files
+
+
+def test_not_enough_disk_is_refused_with_the_size(tmp_path, monkeypatch):
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10, 10, 1000))
+    with pytest.raises(DatasetError, match=r"GiB free, generating 4105 CarGoal2 trajectories "
+                                           r"needs about [0-9.]+ GiB"):
+        collect.check_disk(get_task("CarGoal2"), collect.make_spec(get_task("CarGoal2")),
+                           tmp_path)
+
+
+def test_data_cli_errors(tmp_path, monkeypatch, capsys):
+    from r2pac_jax.data.__main__ import main
+
     monkeypatch.setenv("R2PAC_DATA_DIR", str(tmp_path))
-    full = pl.PPOLagConfig
-    small = lambda **kw: full(**{**TINY, **kw})  # noqa: E731
-    monkeypatch.setattr(pl, "PPOLagConfig", small)
-    task = get_task("ReachAvoid")
-    path = factory.generate_dataset(task, 5, seed=1, plot=False, source="ppo-lagrangian")
-    assert path.name == "ReachAvoid-generated-ppolag-s1-n5.hdf5"
-    card = __import__("json").loads(factory.card_path(path).read_text())
-    assert card["trajectories"] == 5 and "PPO-Lagrangian" in card["sources"][0]
-    assert card["thinning"]["generated"] == 10
-    # train's automatic lookup only takes the scripted source's files
-    assert factory.find_cached(task) is None
+    with pytest.raises(SystemExit):
+        main(["make", "--task", "ReachAvoid", "--source", "sac"])
+    assert "invalid choice: 'sac'" in capsys.readouterr().err
+    assert main(["make", "--task", "BallRun", "--source", "ppo-lagrangian"]) == 2
+    assert "no data source for task 'BallRun'" in capsys.readouterr().err
+    assert main(["make", "--task", "CarGoal2", "--source", "ppo-lagrangian", "--budget", "0"]) \
+        == 2
+    assert "--budget and --trajectories must be >= 1" in capsys.readouterr().err
 
 
 @pytest.mark.slow
-def test_runs_on_an_mjx_task():
-    """The recipe's point on an accelerator: a MuJoCo task on MJX (minutes to compile on CPU)."""
-    task = get_task("HalfCheetahVelocity")
-    cfg = pl.PPOLagConfig(num_envs=4, rollout_len=10, updates=2, epochs=1, minibatches=1,
-                          hidden=(16,), snapshots=2, limit_start=40.0, limit_end=5.0)
-    a = pl.generate(task, 2, seed=0, physics="mjx", cfg=cfg, log=lambda m: None)
-    ds = validate(a, "ppo-mjx", task.obs_dim, task.act_dim, task.name)
-    assert len(ds.episode_sums()[0]) == 2 and ds.size == 2 * task.episode_len
+def test_generation_on_mjx():
+    """The MJX path (minutes to compile on a CPU): a velocity task through the jitted rollout."""
+    import tempfile
+    from pathlib import Path
+
+    task = get_task("HopperVelocity")
+    d = Path(tempfile.mkdtemp())
+    kw = dict(HOP, physics="mjx", trajectories=1, env_steps=2 * 40 * 2,
+              ppo=dict(num_envs=2, rollout_len=40, hidden=(16,), minibatches=1, epochs=1))
+    p = collect.generate_learned(task, d / "hop.hdf5", **kw)
+    card = json.loads(factory.card_path(p).read_text())
+    assert card["physics"] == "mjx" and card["generation"]["updates"] == 2

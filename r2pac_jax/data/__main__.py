@@ -1,5 +1,5 @@
-"""`python -m r2pac_jax.data make --task TASK [--trajectories N] [--seed S]
-[--source scripted|ppo-lagrangian] [--physics auto|mjx]`."""
+"""`python -m r2pac_jax.data make --task TASK [--source scripted|ppo-lagrangian]
+[--trajectories N] [--seed S] [--budget ENV_STEPS] [--physics auto|mujoco|mjx] [--force]`."""
 from __future__ import annotations
 
 import argparse
@@ -14,31 +14,64 @@ def main(argv=None) -> int:
     sub = ap.add_subparsers(dest="cmd", required=True)
     mk = sub.add_parser("make", help="generate a DSRL-format dataset for a task")
     mk.add_argument("--task", required=True)
-    mk.add_argument("--trajectories", type=int, default=None)
+    mk.add_argument("--trajectories", type=int, default=None,
+                    help="trajectories in the file (default: the source's; DSRL's size for "
+                         "ppo-lagrangian)")
     mk.add_argument("--seed", type=int, default=0)
     mk.add_argument("--source", default="scripted", choices=SOURCE_KINDS,
-                    help="scripted (default: each task's controllers) | ppo-lagrangian (DSRL's "
-                         "recipe in JAX; ReachAvoid, or MuJoCo tasks with --physics mjx)")
-    mk.add_argument("--physics", default="auto", help="ppo-lagrangian only: auto | mjx")
+                    help="scripted (each task's controllers, data v1) | ppo-lagrangian (DSRL's "
+                         "recipe: an observation-based Lagrangian agent under DSRL's cost "
+                         "schedule, data v2; resumable)")
+    mk.add_argument("--budget", type=int, default=None,
+                    help="ppo-lagrangian: RL budget in env steps (default DSRL's, e.g. 22M for "
+                         "CarGoal2); the schedule scales with it")
+    mk.add_argument("--num-envs", type=int, default=None,
+                    help="ppo-lagrangian: parallel environments (default the task's recipe)")
+    mk.add_argument("--checkpoint-every", type=int, default=10,
+                    help="ppo-lagrangian: updates between checkpoints")
+    mk.add_argument("--physics", default="auto",
+                    help="ppo-lagrangian: auto (C MuJoCo on a CPU, MJX on an accelerator) | "
+                         "mujoco | mjx")
+    mk.add_argument("--force", action="store_true",
+                    help="discard an existing file (and a generation's partial state) first")
     args = ap.parse_args(argv)
 
     from tqdm import tqdm
 
     from r2pac_jax.data import factory
+    from r2pac_jax.data.dsrl import DatasetError
+    from r2pac_jax.io import DirectoryBusy
     from r2pac_jax.tasks import UnknownTaskError, get_task
 
     try:
         task = get_task(args.task)
-        n = args.trajectories or factory.default_trajectories(task)
-        path = factory.dataset_path(task, args.seed, n, args.source)
-        if path.exists() and factory.card_path(path).exists():
-            print(f"{path} exists (card {factory.card_path(path)})")
-            return 0
+        n = args.trajectories or (task.collection.trajectories
+                                  if args.source == "ppo-lagrangian" and task.collection
+                                  else factory.default_trajectories(task))
         t0 = time.time()
-        with tqdm(total=n, unit="traj", desc=f"{task.name} data") as bar:
-            path = factory.generate_dataset(task, n, args.seed, progress=bar.update,
-                                            source=args.source, physics=args.physics)
-    except (UnknownTaskError, factory.FactoryError) as e:
+        if args.source == "ppo-lagrangian":
+            path = factory.dataset_path(task, args.seed, n, args.source, args.budget) \
+                if task.collection else None
+            if path is not None and not args.force and path.exists() and \
+                    factory.card_path(path).exists():
+                print(f"{path} exists (card {factory.card_path(path)}); --force makes it again")
+                return 0
+            ppo = {} if args.num_envs is None else {"num_envs": args.num_envs}
+            path = factory.generate_dataset(task, n, args.seed, source=args.source,
+                                            physics=args.physics, env_steps=args.budget,
+                                            force=args.force, ppo=ppo,
+                                            checkpoint_every=args.checkpoint_every,
+                                            progress=True)
+        else:
+            path = factory.dataset_path(task, args.seed, n, args.source)
+            if not args.force and path.exists() and factory.card_path(path).exists():
+                print(f"{path} exists (card {factory.card_path(path)}); --force makes it again")
+                return 0
+            with tqdm(total=n, unit="traj", desc=f"{task.name} data") as bar:
+                path = factory.generate_dataset(task, n, args.seed, progress=bar.update,
+                                                source=args.source, physics=args.physics,
+                                                force=args.force)
+    except (UnknownTaskError, DatasetError, DirectoryBusy) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     print(f"wrote {path} in {time.time() - t0:.1f} s; card {factory.card_path(path)}; "

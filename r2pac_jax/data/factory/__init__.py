@@ -4,16 +4,17 @@ A source is a dict: `name`, `generate(n_trajectories, seed, progress) -> DSRL ar
 `default_trajectories`, and optionally `oversample` (generate that many times more
 trajectories, then thin them to the requested number with DSRL's density grid).
 
-Two kinds of source: `scripted` (each task's default, the controllers of navigation.py,
-velocity.py and reach_avoid.py) and `ppo-lagrangian` (DSRL's recipe, ppo_lagrangian.py; JAX
-environments only: ReachAvoid, or the MuJoCo tasks on MJX).
+Two kinds of source: `scripted` (each task's default today, the controllers of navigation.py,
+velocity.py and reach_avoid.py: data version 1) and `ppo-lagrangian` (DSRL's recipe: an
+observation-based PPO-Lagrangian agent under DSRL's cost schedule, trajectories kept along
+training, collect.py: data version 2; C MuJoCo on a CPU, MJX or pure JAX, resumable).
 
 Files go to `$R2PAC_DATA_DIR` (default `~/.cache/r2pac_jax/datasets`) as
-`{Task}-generated-s{seed}-n{trajectories}.hdf5` (scripted) or
-`{Task}-generated-ppolag-s{seed}-n{trajectories}.hdf5` with a JSON card beside them; `train`
-picks up the scripted ones by itself, a PPO-Lagrangian one is passed with `--dataset`. The HDF5
-file is written atomically and the card last, so a dataset counts as present only when both
-exist.
+`{Task}-generated-s{seed}-n{trajectories}.hdf5` (scripted v1) or
+`{Task}-generated-ppolag-v2-s{seed}-n{trajectories}[-b{env_steps}].hdf5` (learned; `-b` when
+the RL budget differs from DSRL's) with a JSON card beside them; `train` picks up the scripted
+ones by itself, a PPO-Lagrangian one is passed with `--dataset`. The HDF5 file is written
+atomically and the card last, so a dataset counts as present only when both exist.
 """
 from __future__ import annotations
 
@@ -55,21 +56,10 @@ def _source(task: TaskSpec, kind: str, physics: str = "auto") -> dict:
                            "in $DSRL_DATASET_DIR")
     if kind == "scripted":
         return srcs[task.name]
-    if physics == "mujoco":
-        raise FactoryError("the ppo-lagrangian source trains inside JAX and cannot use the "
-                           "C-MuJoCo backend; use --physics mjx (an accelerator) or --source "
-                           "scripted")
-    from r2pac_jax.data.factory import ppo_lagrangian
-
-    oversample = 2  # record twice the episodes, then thin them on DSRL's density grid
-
-    def gen(n, seed, progress=None):
-        scaled = None if progress is None else (lambda k: progress(k / oversample))
-        return ppo_lagrangian.generate(task, n, seed, physics=physics, progress=scaled)
-
-    return dict(name="PPO-Lagrangian with an annealed cost limit (JAX), snapshot rollouts",
-                generate=gen, default_trajectories=srcs[task.name]["default_trajectories"],
-                oversample=oversample)
+    if task.collection is None:
+        raise FactoryError(f"task {task.name} has no learned-behaviour recipe yet; use "
+                           "--source scripted")
+    return dict(name="ppo-lagrangian", default_trajectories=task.collection.trajectories)
 
 
 def has_source(task: TaskSpec) -> bool:
@@ -80,9 +70,15 @@ def cache_dir() -> Path:
     return Path(os.environ.get("R2PAC_DATA_DIR", "~/.cache/r2pac_jax/datasets")).expanduser()
 
 
-def dataset_path(task: TaskSpec, seed: int, trajectories: int, source: str = "scripted") -> Path:
-    tag = "" if source == "scripted" else "-ppolag"
-    return cache_dir() / f"{task.name}-generated{tag}-s{seed}-n{trajectories}.hdf5"
+def dataset_path(task: TaskSpec, seed: int, trajectories: int, source: str = "scripted",
+                 env_steps: Optional[int] = None) -> Path:
+    if source == "scripted":
+        return cache_dir() / f"{task.name}-generated-s{seed}-n{trajectories}.hdf5"
+    from r2pac_jax.data.factory.collect import DATA_VERSION
+
+    budget = "" if env_steps in (None, task.collection.env_steps) else f"-b{env_steps}"
+    return cache_dir() / (f"{task.name}-generated-ppolag-v{DATA_VERSION}-s{seed}-"
+                          f"n{trajectories}{budget}.hdf5")
 
 
 def card_path(path: Path) -> Path:
@@ -134,13 +130,20 @@ def make_card(task: TaskSpec, ds: Dataset, seed: int, trajectories: int, source:
 
 def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: int = 0,
                      progress: Optional[Callable[[int], None]] = None, plot: bool = True,
-                     source: str = "scripted", physics: str = "auto") -> Path:
-    """Make (or reuse) the dataset file for (task, seed, trajectories, source); its path."""
+                     source: str = "scripted", physics: str = "auto",
+                     env_steps: Optional[int] = None, force: bool = False,
+                     log: Callable[[str], None] = print, **learned) -> Optional[Path]:
+    """Make (or reuse) the dataset file for (task, seed, trajectories, source); its path.
+
+    `force` discards an existing file (and a learned source's partial state) first. For the
+    learned source, `env_steps` is the RL budget (default DSRL's) and `learned` passes
+    `collect.generate_learned`'s options (`ppo`, `checkpoint_every`, `stop_after`, ...);
+    it returns None when stopped early by `stop_after`."""
     src = _source(task, source, physics)
     n = trajectories or src["default_trajectories"]
     if n < 1:
         raise FactoryError(f"--trajectories must be >= 1, got {n}")
-    path = dataset_path(task, seed, n, source)
+    path = dataset_path(task, seed, n, source, env_steps)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         probe = path.parent / f".write-test-{os.getpid()}"
@@ -149,8 +152,19 @@ def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: i
     except OSError as e:
         raise FactoryError(f"cache directory {path.parent} is not writable ({e}); set "
                            "R2PAC_DATA_DIR to a writable directory") from e
+    if force:
+        import shutil
+
+        for p in (path, card_path(path), path.with_suffix(".png")):
+            p.unlink(missing_ok=True)
+        shutil.rmtree(f"{path}.partial", ignore_errors=True)
     if path.exists() and card_path(path).exists():
         return path
+    if source == "ppo-lagrangian":
+        from r2pac_jax.data.factory.collect import generate_learned
+
+        return generate_learned(task, path, n, env_steps, seed, physics, log=log,
+                                progress=learned.pop("progress", progress is not None), **learned)
     oversample = int(src.get("oversample", 1))
     arrays = src["generate"](n * oversample, seed, progress=progress)
     thinning = None

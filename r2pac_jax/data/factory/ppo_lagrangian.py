@@ -1,22 +1,26 @@
-"""DSRL's behaviour recipe in JAX: PPO with a Lagrange multiplier and an annealed cost limit.
+"""DSRL's behaviour recipe: PPO with a Lagrange multiplier under a scheduled cost limit.
 
-DSRL trained Lagrangian RL agents while annealing the cost limit and kept their trajectories,
-so the data cover the cost/return plane from reckless to cautious. Here one PPO-Lagrangian run
-anneals its per-episode cost limit linearly from `limit_start` to `limit_end`; the actor is
-snapshotted `snapshots` times along the way, and the dataset's episodes are recorded with those
-snapshots (stochastic actions), an equal share each. (DSRL kept the training rollouts
-themselves; recording with snapshots gives the same spread of behaviours with whole episodes.)
+DSRL trained TRPO-Lagrangian agents (PID multiplier, 128x128 networks, stochastic policies)
+while moving the cost limit, and kept their trajectories along training, so the data cover the
+cost/return plane from reckless to cautious behaviour of a policy that sees only the observation.
+This module is the learner, shared by every backend: the networks, GAE, the PID multiplier, the
+schedule and the PPO update (`make_update`), and two rollout paths that produce the same
+trajectory batch ([T, N] arrays):
 
-The whole training is one jitted `lax.scan` over updates (purejaxrl's shape), so it needs a
-JAX environment: ReachAvoid (pure JAX) or the MuJoCo tasks with `physics="mjx"` (a GPU). The
-C-MuJoCo backend steps outside JAX and is refused with a clear error.
+  - `rollout_batch`: a Python loop over control steps around the env's `reset_batch` /
+    `step_batch` and a jitted policy step: C MuJoCo on a CPU (numpy state);
+  - `make_jax_rollout`: one jitted `lax.scan` over T steps for JAX environments (pure JAX,
+    MJX on an accelerator).
+
+`collect.py` drives them (the schedule, trajectories kept along training, checkpoints).
+PPO instead of DSRL's TRPO: one first-order update shared with the JAX path (see GENERATION.md).
 
 Shapes: N = num_envs, T = rollout_len, O = obs_dim, A = act_dim.
 """
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable, Optional, Sequence
+from typing import Callable, Sequence
 
 import chex
 import flax.linen as nn
@@ -25,28 +29,36 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from r2pac_jax.data.factory.batch import keep_valid_steps
-from r2pac_jax.data.factory.thinning import select_episodes
-from r2pac_jax.envs.base import record_episode
-
 
 @dataclasses.dataclass(frozen=True)
 class PPOLagConfig:
-    num_envs: int = 64
-    rollout_len: int = 80  # steps per env between updates
-    updates: int = 300
-    epochs: int = 4
+    num_envs: int = 10
+    rollout_len: int = 1000  # steps per env between updates (DSRL: 10 episodes per collect)
+    epochs: int = 4  # DSRL's repeat_per_collect
     minibatches: int = 4
-    lr: float = 3e-4
+    lr: float = 5e-4  # DSRL's
     gamma: float = 0.99
     gae_lambda: float = 0.95
     clip: float = 0.2
-    hidden: Sequence[int] = (64, 64)
-    init_log_std: float = -0.5
-    limit_start: float = 20.0  # per-episode cost limit at the first update ...
-    limit_end: float = 1.0  # ... annealed linearly to this at the last
-    lagrange_lr: float = 0.05
-    snapshots: int = 10  # actors kept (evenly spaced over the updates, the last included)
+    hidden: Sequence[int] = (128, 128)  # DSRL's
+    init_log_std: float = -0.5  # DSRL's sigma init
+    pid: Sequence[float] = (0.05, 0.005, 0.1)  # DSRL's KP, KI, KD
+
+    def validate(self) -> None:
+        from r2pac_jax.data.dsrl import DatasetError
+
+        for k in ("num_envs", "rollout_len", "epochs", "minibatches"):
+            if getattr(self, k) < 1:
+                raise DatasetError(f"PPO-Lagrangian: {k} must be >= 1, got {getattr(self, k)}")
+        if (self.num_envs * self.rollout_len) % self.minibatches:
+            raise DatasetError(f"PPO-Lagrangian: num_envs x rollout_len = "
+                               f"{self.num_envs * self.rollout_len} is not divisible into "
+                               f"{self.minibatches} minibatches")
+        if not self.lr > 0 or not 0 < self.gamma < 1 or not 0 <= self.gae_lambda <= 1:
+            raise DatasetError("PPO-Lagrangian: lr must be > 0, gamma in (0, 1), gae_lambda in "
+                               "[0, 1]")
+        if len(self.pid) != 3 or min(self.pid) < 0:
+            raise DatasetError(f"PPO-Lagrangian: pid must be three gains >= 0, got {self.pid}")
 
 
 class _MLP(nn.Module):
@@ -106,83 +118,97 @@ def gae(rewards, values, next_values, terminated, done, gamma, lam):
     return adv, adv + values
 
 
-def lagrange_update(lam, episode_cost, limit, lr):
-    """Projected gradient ascent on the multiplier: grows while the cost exceeds the limit."""
-    return jnp.maximum(0.0, lam + lr * (episode_cost - limit))
+def pid_multiplier(pid_state, episode_cost, limit, gains):
+    """DSRL's PID Lagrangian (fsrl / OSRL's LagrangianPIDController) on the mean episode cost.
+
+    pid_state = (integral, previous error) -> (new state, multiplier >= 0)."""
+    kp, ki, kd = gains
+    integral, prev = pid_state
+    error = episode_cost - limit
+    diff = max(error - prev, 0.0)
+    integral = max(integral + error, 0.0)
+    lam = max(kp * max(error, 0.0) + ki * integral + kd * diff, 0.0)
+    return (integral, error), lam
 
 
-def cost_limit(update, cfg: PPOLagConfig):
-    frac = update / max(cfg.updates - 1, 1)
-    return cfg.limit_start + frac * (cfg.limit_end - cfg.limit_start)
+@dataclasses.dataclass(frozen=True)
+class CostSchedule:
+    """DSRL's cost-limit schedule over env steps: `start` until `start_step`, then linear to
+    `end` at `end_step`, then `end` (DSRL: cost_limit_scheduler over epochs of 10k steps)."""
+
+    start: float
+    end: float
+    start_step: int
+    end_step: int
+
+    def __post_init__(self):
+        from r2pac_jax.data.dsrl import DatasetError
+
+        if not (self.start > 0 and self.end > 0):
+            raise DatasetError(f"cost schedule: limits must be > 0, got {self.start} -> {self.end}")
+        if not 0 <= self.start_step < self.end_step:
+            raise DatasetError(f"cost schedule: need 0 <= start_step < end_step, got "
+                               f"{self.start_step}, {self.end_step}")
+
+    def limit(self, env_steps: int) -> float:
+        x = min(max(0, env_steps - self.start_step), self.end_step - self.start_step)
+        return float(self.start - x * (self.start - self.end) / (self.end_step - self.start_step))
 
 
-def make_train(env, cfg: PPOLagConfig) -> Callable:
-    """`train(key) -> (actor snapshots [S, ...], metrics per update)`, pure and jittable."""
-    if not getattr(env, "is_jax", False):
-        raise ValueError(f"PPO-Lagrangian needs a JAX environment; {env.name!r} runs its physics "
-                         "outside JAX (C MuJoCo). Use physics='mjx' (an accelerator) or the "
-                         "scripted source (--source scripted)")
-    actor = Actor(env.act_dim, tuple(cfg.hidden), cfg.init_log_std)
+def networks(obs_dim: int, act_dim: int, cfg: PPOLagConfig):
+    actor = Actor(act_dim, tuple(cfg.hidden), cfg.init_log_std)
     critics = Critics(tuple(cfg.hidden))
     opt = optax.chain(optax.clip_by_global_norm(0.5), optax.adam(cfg.lr))
-    N, T = cfg.num_envs, cfg.rollout_len
-    snap_at = jnp.asarray(np.linspace(0, cfg.updates - 1, cfg.snapshots).round().astype(int))
-    v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
+    return actor, critics, opt
 
-    def rollout(params, carry, key):
-        def one(c, k):
-            s, ep_ret, ep_cost = c
-            k_a, k_r = jax.random.split(k)
-            mean, log_std = actor.apply(params["actor"], s.obs)
-            raw = mean + jnp.exp(log_std) * jax.random.normal(k_a, mean.shape)
-            s2 = v_step(s, jnp.clip(raw, -1.0, 1.0))
-            done = s2.terminated | s2.truncated
-            ep_ret, ep_cost = ep_ret + s2.reward, ep_cost + s2.cost
-            vr, vc = critics.apply(params["critics"], s.obs)
-            nvr, nvc = critics.apply(params["critics"], s2.obs)
 
-            def reset_ended(s2):  # only when an episode ended: a reset is costly on MJX
-                fresh = v_reset(jax.random.split(k_r, N))
-                pick = lambda f, o: jnp.where(  # noqa: E731
-                    done.reshape(done.shape + (1,) * (f.ndim - 1)), f, o)
-                return jax.tree_util.tree_map(pick, fresh, s2)
+def init_params(key, obs_dim: int, actor, critics) -> dict:
+    k_a, k_c = jax.random.split(key)
+    obs0 = jnp.zeros((obs_dim,), jnp.float32)
+    return dict(actor=actor.init(k_a, obs0), critics=critics.init(k_c, obs0))
 
-            s_next = jax.lax.cond(done.any(), reset_ended, lambda s2: s2, s2)
-            out = dict(obs=s.obs, raw=raw, logp=_log_prob(mean, log_std, raw), r=s2.reward,
-                       c=s2.cost, term=s2.terminated.astype(jnp.float32),
-                       done=done.astype(jnp.float32), vr=vr, vc=vc, nvr=nvr, nvc=nvc,
-                       fin_ret=jnp.where(done, ep_ret, 0.0), fin_cost=jnp.where(done, ep_cost, 0.0))
-            return (s_next, jnp.where(done, 0.0, ep_ret), jnp.where(done, 0.0, ep_cost)), out
 
-        return jax.lax.scan(one, carry, jax.random.split(key, T))
+def make_policy_step(actor, critics) -> Callable:
+    """policy(params, obs [N, O], key) -> (raw [N, A], action [N, A] clipped, logp [N], V_r, V_c),
+    jitted; `policy.values(params, obs) -> (V_r, V_c)`."""
+
+    def policy(params, obs, key):
+        mean, log_std = actor.apply(params["actor"], obs)
+        raw = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
+        vr, vc = critics.apply(params["critics"], obs)
+        return raw, jnp.clip(raw, -1.0, 1.0), _log_prob(mean, log_std, raw), vr, vc
+
+    fn = jax.jit(policy)
+    fn.values = jax.jit(lambda params, obs: critics.apply(params["critics"], obs))
+    fn.pure = policy
+    return fn
+
+
+def make_update(actor, critics, opt, cfg: PPOLagConfig) -> Callable:
+    """`update(params, opt_state, traj, lam, key) -> (params, opt_state, metrics)`: GAE on both
+    critics, then `epochs` x `minibatches` PPO steps on the Lagrangian advantage
+    (A_r - lam A_c) / (1 + lam) (DSRL's rescaling). traj: [T, N] arrays obs, raw, logp, r, c,
+    term, done, vr, vc, nvr, nvc."""
 
     def loss_fn(params, mb, lam):
         mean, log_std = actor.apply(params["actor"], mb["obs"])
         ratio = jnp.exp(_log_prob(mean, log_std, mb["raw"]) - mb["logp"])
-        adv = (mb["adv_r"] - lam * mb["adv_c"]) / (1.0 + lam)  # the Lagrangian, rescaled
+        adv = (mb["adv_r"] - lam * mb["adv_c"]) / (1.0 + lam)
         adv = (adv - adv.mean()) / (adv.std() + 1e-8)
         pg = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv).mean()
         vr, vc = critics.apply(params["critics"], mb["obs"])
         vloss = ((vr - mb["tgt_r"]) ** 2).mean() + ((vc - mb["tgt_c"]) ** 2).mean()
         return pg + 0.5 * vloss, (pg, vloss)
 
-    def update(carry, i):
-        params, opt_state, env_carry, lam, jc, jr, key = carry
-        key, k_roll, k_perm = jax.random.split(key, 3)
-        env_carry, tr = rollout(params, env_carry, k_roll)
-        adv_r, tgt_r = gae(tr["r"], tr["vr"], tr["nvr"], tr["term"], tr["done"], cfg.gamma,
-                           cfg.gae_lambda)
-        adv_c, tgt_c = gae(tr["c"], tr["vc"], tr["nvc"], tr["term"], tr["done"], cfg.gamma,
-                           cfg.gae_lambda)
-        n_fin = tr["done"].sum()
-        # mean cost and return of the episodes finished in this rollout (kept if none did)
-        jc = jnp.where(n_fin > 0, tr["fin_cost"].sum() / jnp.maximum(n_fin, 1.0), jc)
-        jr = jnp.where(n_fin > 0, tr["fin_ret"].sum() / jnp.maximum(n_fin, 1.0), jr)
-        limit = cost_limit(i, cfg)
-        lam = lagrange_update(lam, jc, limit, cfg.lagrange_lr)
+    def update(params, opt_state, traj, lam, key):
+        T, N = traj["r"].shape
+        adv_r, tgt_r = gae(traj["r"], traj["vr"], traj["nvr"], traj["term"], traj["done"],
+                           cfg.gamma, cfg.gae_lambda)
+        adv_c, tgt_c = gae(traj["c"], traj["vc"], traj["nvc"], traj["term"], traj["done"],
+                           cfg.gamma, cfg.gae_lambda)
         flat = jax.tree_util.tree_map(
             lambda x: x.reshape((T * N,) + x.shape[2:]),
-            dict(obs=tr["obs"], raw=tr["raw"], logp=tr["logp"], adv_r=adv_r, adv_c=adv_c,
+            dict(obs=traj["obs"], raw=traj["raw"], logp=traj["logp"], adv_r=adv_r, adv_c=adv_c,
                  tgt_r=tgt_r, tgt_c=tgt_c))
 
         def epoch(c, k):
@@ -199,67 +225,102 @@ def make_train(env, cfg: PPOLagConfig) -> Callable:
             return jax.lax.scan(mb_step, (params, opt_state), perm)
 
         (params, opt_state), (pg, vl) = jax.lax.scan(epoch, (params, opt_state),
-                                                     jax.random.split(k_perm, cfg.epochs))
-        metrics = dict(episode_return=jr, episode_cost=jc, finished=n_fin, cost_limit=limit,
-                       lagrange=lam, policy_loss=pg.mean(), value_loss=vl.mean())
-        return (params, opt_state, env_carry, lam, jc, jr, key), (params["actor"], metrics)
+                                                     jax.random.split(key, cfg.epochs))
+        return params, opt_state, dict(policy_loss=pg.mean(), value_loss=vl.mean())
 
-    def train(key):
-        k_a, k_c, k_env, key = jax.random.split(key, 4)
-        obs0 = jnp.zeros((env.obs_dim,), jnp.float32)
-        params = dict(actor=actor.init(k_a, obs0), critics=critics.init(k_c, obs0))
-        s0 = v_reset(jax.random.split(k_env, N))
-        zeros = jnp.zeros((N,), jnp.float32)
-        z = jnp.zeros(())
-        carry = (params, opt.init(params), (s0, zeros, zeros), z, z, z, key)
-        _, (actors, metrics) = jax.lax.scan(update, carry, jnp.arange(cfg.updates))
-        snaps = jax.tree_util.tree_map(lambda x: x[snap_at], actors)
-        return snaps, metrics
-
-    train.actor = actor
-    return train
+    return jax.jit(update)
 
 
-def record(env, actor: Actor, snaps, episodes_per_snapshot: int, key) -> dict:
-    """Whole episodes of every snapshot (stochastic actions): DSRL arrays of the real steps,
-    episode-major, snapshot by snapshot."""
-    S = jax.tree_util.tree_leaves(snaps)[0].shape[0]
-    E = episodes_per_snapshot
-
-    def episode(p, k):
-        def act(s, k):
-            mean, log_std = actor.apply(p, s.obs)
-            return jnp.clip(mean + jnp.exp(log_std) * jax.random.normal(k, mean.shape), -1.0, 1.0)
-
-        return record_episode(env, act, k)
-
-    per_snap = jax.vmap(episode, in_axes=(None, 0))
-    run = jax.jit(jax.vmap(per_snap, in_axes=(0, 0)))
-    keys = jax.random.split(key, S * E).reshape(S, E, -1)
-    return keep_valid_steps(run(snaps, keys))  # [S, E, T, ...] -> real steps
+TRAJ_KEYS = ("obs", "nobs", "raw", "act", "logp", "r", "c", "term", "trunc", "done", "vr", "vc",
+             "nvr", "nvc")
 
 
-def generate(task, n_trajectories: int, seed: int, physics: str = "auto",
-             cfg: Optional[PPOLagConfig] = None, progress=None, log=print) -> dict:
-    """Train PPO-Lagrangian on `task`'s JAX environment and record `n_trajectories` episodes
-    with its snapshots (DSRL arrays). The limits default to 4 kappa -> kappa / 2."""
-    if task.family == "demo":
-        physics = "auto"  # pure JAX: there is no backend to choose
-    elif physics == "auto":
-        physics = "mjx"  # auto would pick C MuJoCo on a CPU, which make_train refuses
-    env = task.make_env(physics=physics)
-    cfg = cfg or PPOLagConfig(limit_start=4.0 * task.kappa, limit_end=0.5 * task.kappa)
-    E = -(-n_trajectories // cfg.snapshots)
-    train = make_train(env, cfg)
-    k_train, k_rec = jax.random.split(jax.random.PRNGKey(seed))
-    snaps, metrics = jax.jit(train)(k_train)
-    m = jax.tree_util.tree_map(np.asarray, metrics)
-    log(f"PPO-Lagrangian on {task.name}: {cfg.updates} updates x {cfg.num_envs * cfg.rollout_len}"
-        f" steps; episode return {m['episode_return'][0]:.1f} -> {m['episode_return'][-1]:.1f}, "
-        f"cost {m['episode_cost'][0]:.1f} -> {m['episode_cost'][-1]:.1f} (limit "
-        f"{cfg.limit_start:g} -> {cfg.limit_end:g}), multiplier -> {m['lagrange'][-1]:.2f}")
-    arrays = record(env, train.actor, snaps, E, k_rec)
-    arrays = select_episodes(arrays, np.arange(n_trajectories))
-    if progress is not None:
-        progress(n_trajectories)
-    return arrays
+def _scatter(full, idx: np.ndarray, part):
+    """Rows `idx` of a numpy pytree replaced by `part`'s rows."""
+    def put(f, p):
+        f = np.array(f, copy=True)
+        f[idx] = np.asarray(p)
+        return f
+    return jax.tree_util.tree_map(put, full, part)
+
+
+def rollout_batch(env, policy: Callable, params, state, key, T: int):
+    """T control steps of a batched env from Python (C MuJoCo), resetting episodes that end.
+
+    Returns (state after the last step, traj {[T, N] numpy}); traj["nobs"] holds the true next
+    observations (before a reset), so GAE bootstraps time-limit cuts correctly."""
+    out = {k: [] for k in TRAJ_KEYS if k not in ("nvr", "nvc")}
+    keys = jax.random.split(key, T)
+    for t in range(T):
+        k_act, k_reset = jax.random.split(keys[t])
+        obs = np.asarray(state.obs)
+        raw, act, logp, vr, vc = policy(params, obs, k_act)
+        act = np.asarray(act)
+        nxt = env.step_batch(state, act)
+        term, trunc = np.asarray(nxt.terminated), np.asarray(nxt.truncated)
+        done = term | trunc
+        for k, v in (("obs", obs), ("nobs", nxt.obs), ("raw", raw), ("act", act), ("logp", logp),
+                     ("r", nxt.reward), ("c", nxt.cost), ("term", term), ("trunc", trunc & ~term),
+                     ("done", done), ("vr", vr), ("vc", vc)):
+            out[k].append(np.asarray(v))
+        if done.any():
+            idx = np.flatnonzero(done)
+            fresh = env.reset_batch(jax.random.split(k_reset, len(done))[idx])
+            nxt = _scatter(jax.tree_util.tree_map(np.asarray, nxt), idx,
+                           jax.tree_util.tree_map(np.asarray, fresh))
+        state = nxt
+    traj = {k: np.stack(v) for k, v in out.items()}
+    # values of the true next observations: the next step's values inside an episode; computed
+    # afresh where an episode ended (its next observation is not the next step's) and at T - 1
+    n_vr = np.concatenate([traj["vr"][1:], np.zeros_like(traj["vr"][:1])])
+    n_vc = np.concatenate([traj["vc"][1:], np.zeros_like(traj["vc"][:1])])
+    fresh_at = traj["done"].copy()
+    fresh_at[-1] = True
+    ti, ni = np.nonzero(fresh_at)
+    vr_f, vc_f = policy.values(params, traj["nobs"][ti, ni])
+    n_vr[ti, ni], n_vc[ti, ni] = np.asarray(vr_f), np.asarray(vc_f)
+    traj["nvr"], traj["nvc"] = n_vr, n_vc
+    return state, traj
+
+
+def make_jax_rollout(env, policy: Callable, N: int, T: int) -> Callable:
+    """`rollout(params, state, key) -> (state, traj)` as one jitted scan (JAX envs)."""
+    v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
+
+    pure = policy.pure
+
+    def one(carry, key):
+        params, s = carry
+        k_act, k_reset = jax.random.split(key)
+        raw, act, logp, vr, vc = pure(params, s.obs, k_act)
+        s2 = v_step(s, act)
+        done = s2.terminated | s2.truncated
+        _, _, _, nvr, nvc = pure(params, s2.obs, k_act)
+
+        def reset_ended(s2):  # only when an episode ended: a reset is costly on MJX
+            fresh = v_reset(jax.random.split(k_reset, N))
+            pick = lambda f, o: jnp.where(  # noqa: E731
+                done.reshape(done.shape + (1,) * (f.ndim - 1)), f, o)
+            return jax.tree_util.tree_map(pick, fresh, s2)
+
+        s_next = jax.lax.cond(done.any(), reset_ended, lambda s2: s2, s2)
+        step = dict(obs=s.obs, nobs=s2.obs, raw=raw, act=act, logp=logp, r=s2.reward, c=s2.cost,
+                    term=s2.terminated, trunc=s2.truncated & ~s2.terminated, done=done, vr=vr,
+                    vc=vc, nvr=nvr, nvc=nvc)
+        return (params, s_next), step
+
+    @jax.jit
+    def rollout(params, state, key):
+        (_, state), traj = jax.lax.scan(one, (params, state), jax.random.split(key, T))
+        return state, traj
+
+    return rollout
+
+
+def as_update_batch(traj: dict) -> dict:
+    """The float32 [T, N] arrays `update` reads."""
+    out = {k: jnp.asarray(traj[k], jnp.float32) for k in ("r", "c", "vr", "vc", "nvr", "nvc",
+                                                           "logp", "term", "done")}
+    out["obs"] = jnp.asarray(traj["obs"], jnp.float32)
+    out["raw"] = jnp.asarray(traj["raw"], jnp.float32)
+    return out

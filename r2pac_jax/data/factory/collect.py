@@ -1,0 +1,421 @@
+"""Learned-behaviour datasets (DSRL's recipe), generated resumably on any backend.
+
+A PPO-Lagrangian agent (`ppo_lagrangian.py`) that sees only the observation trains for the
+task's RL budget while its cost limit follows DSRL's schedule (`tasks.CollectionSpec`); every
+episode it finishes along training with cost <= the cap (and return >= the floor) goes to a pool
+on disk; the pool is evened out on DSRL-style density grids (`thinning.py`) whenever it grows past
+1.5 x the target (DSRL's TrajectoryBuffer filter interval), and the final file keeps `target`
+trajectories. C MuJoCo envs roll out from Python (`rollout_batch`), JAX envs in one jitted scan
+per update (`make_jax_rollout`); both feed the same update, multiplier and schedule.
+
+Partial state lives in `{file}.partial/` (locked while a generation runs):
+
+    spec.json   what is generated (task, seed, size, budget, schedule, PPO values); a resumed
+                generation must match it key for key
+    state.pkl   learner, environments and bookkeeping at the last checkpoint (an update boundary)
+    episodes/   one ep-{index}.npz per pooled episode (DSRL arrays)
+    log.jsonl   one row per update (return, cost, limit, multiplier, pool, speed)
+
+A killed generation continues from its last checkpoint and ends with the same arrays as an
+uninterrupted one (same machine and backend): episodes written after the checkpoint are
+discarded on resume and made again identically.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import pickle
+import shutil
+import time
+from pathlib import Path
+from typing import Callable, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from r2pac_jax.data.dsrl import DatasetError
+from r2pac_jax.data.factory import ppo_lagrangian as pl
+from r2pac_jax.data.factory.thinning import thin_by_density
+from r2pac_jax.tasks import TaskSpec
+
+DATA_VERSION = 2  # 1: the scripted controllers; 2: learned behaviour (this module)
+POOL_FACTOR = 1.5  # DSRL's TrajectoryBuffer filter_interval
+
+
+@dataclasses.dataclass(frozen=True)
+class GenSpec:
+    task: str
+    seed: int
+    trajectories: int
+    env_steps: int
+    physics: str
+    schedule: pl.CostSchedule
+    cost_cap: float
+    reward_min: float
+    ppo: pl.PPOLagConfig
+    checkpoint_every: int = 10  # updates
+
+    @property
+    def steps_per_update(self) -> int:
+        return self.ppo.num_envs * self.ppo.rollout_len
+
+    @property
+    def updates(self) -> int:
+        return max(1, self.env_steps // self.steps_per_update)
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["ppo"] = {k: list(v) if isinstance(v, tuple) else v for k, v in d["ppo"].items()}
+        return json.loads(json.dumps(d))  # the form spec.json holds (lists, not tuples)
+
+
+def make_spec(task: TaskSpec, trajectories: Optional[int] = None, env_steps: Optional[int] = None,
+              seed: int = 0, physics: str = "auto", ppo: Optional[dict] = None,
+              checkpoint_every: int = 10) -> GenSpec:
+    """The task's DSRL recipe at its sizes, or scaled: a smaller `env_steps` budget moves the
+    schedule's start and end by the same fraction of the budget."""
+    c = task.collection
+    if c is None:
+        raise DatasetError(f"task {task.name} has no learned-behaviour recipe (tasks.py: "
+                           "set_collection); use --source scripted or pass --dataset")
+    budget = int(c.env_steps if env_steps is None else env_steps)
+    n = int(c.trajectories if trajectories is None else trajectories)
+    if budget < 1 or n < 1:
+        raise DatasetError(f"--budget and --trajectories must be >= 1, got {budget}, {n}")
+    frac = budget / c.env_steps
+    sched = pl.CostSchedule(float(c.cost_start), float(c.cost_end),
+                            int(round(c.epoch_start * c.steps_per_epoch * frac)),
+                            max(1, int(round(c.epoch_end * c.steps_per_epoch * frac))))
+    cfg = pl.PPOLagConfig(**{**dict(c.ppo), **(ppo or {})})
+    cfg.validate()
+    if physics == "auto":
+        physics = "auto" if task.family == "demo" else "mujoco" if jax.default_backend() == "cpu" \
+            else "mjx"
+    return GenSpec(task.name, int(seed), n, budget, physics, sched, float(c.cost_cap),
+                   float(c.reward_min), cfg, int(checkpoint_every))
+
+
+def _numpy(tree):
+    return jax.tree_util.tree_map(np.asarray, tree)
+
+
+def _atomic_pickle(path: Path, obj) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as f:
+        pickle.dump(obj, f, protocol=pickle.HIGHEST_PROTOCOL)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+EPISODE_KEYS = {"observations": "obs", "next_observations": "nobs", "actions": "act",
+                "rewards": "r", "costs": "c", "terminals": "term", "timeouts": "trunc"}
+
+
+class Generation:
+    """One learned-behaviour generation in `partial` (see the module docstring)."""
+
+    def __init__(self, task: TaskSpec, spec: GenSpec, partial: Path,
+                 log: Callable[[str], None] = print, progress: bool = True):
+        self.task, self.spec, self.dir = task, spec, Path(partial)
+        self.log, self.progress = log, progress
+        self.env = task.make_env(physics=spec.physics)
+        self.actor, self.critics, self.opt = pl.networks(task.obs_dim, task.act_dim, spec.ppo)
+        self.policy = pl.make_policy_step(self.actor, self.critics)
+        self.update = pl.make_update(self.actor, self.critics, self.opt, spec.ppo)
+        N, T = spec.ppo.num_envs, spec.ppo.rollout_len
+        self.jax_rollout = (pl.make_jax_rollout(self.env, self.policy, N, T)
+                            if self.env.is_jax else None)
+
+    # ---- state ------------------------------------------------------------------------------
+    def fresh_state(self) -> dict:
+        s = self.spec
+        key = jax.random.PRNGKey(s.seed)
+        k_par, k_env, key = jax.random.split(key, 3)
+        params = pl.init_params(k_par, self.task.obs_dim, self.actor, self.critics)
+        env_state = self.env.reset_batch(jax.random.split(k_env, s.ppo.num_envs))
+        return dict(update=0, env_steps=0, key=np.asarray(key), params=_numpy(params),
+                    opt_state=_numpy(self.opt.init(params)), pid=(0.0, 0.0), lam=0.0,
+                    env=_numpy(env_state), partial=[None] * s.ppo.num_envs, pool=[],
+                    next_index=0, finished=0, thin_rounds=0, last_cost=0.0, last_return=0.0)
+
+    def _check_spec(self) -> None:
+        f = self.dir / "spec.json"
+        new = self.spec.to_dict()
+        if f.exists():
+            old = json.loads(f.read_text())
+            diff = [f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in sorted(set(old) | set(new))
+                    if old.get(k) != new.get(k)]
+            if diff:
+                raise DatasetError(f"{self.dir} holds a generation started with other settings "
+                                   f"({'; '.join(diff)}); rerun with the same options to resume "
+                                   "it, or pass --force to discard it")
+        else:
+            from r2pac_jax.io import atomic_write_json
+
+            atomic_write_json(f, new)
+
+    def _restore(self) -> dict:
+        st = self.dir / "state.pkl"
+        if not st.exists():
+            return self.fresh_state()
+        with open(st, "rb") as f:
+            state = pickle.load(f)
+        # episodes written after the checkpoint, or dropped by the thinning it recorded
+        keep = {e[0] for e in state["pool"]}
+        for p in (self.dir / "episodes").glob("ep-*.npz"):
+            i = int(p.stem[3:])
+            if i >= state["next_index"] or i not in keep:
+                p.unlink()
+        rows = [ln for ln in self._log_file.read_text().splitlines()
+                if ln and json.loads(ln)["update"] <= state["update"]] \
+            if self._log_file.exists() else []
+        self._log_file.write_text("".join(r + "\n" for r in rows))
+        self.log(f"resuming {self.dir} at update {state['update']} of {self.spec.updates} "
+                 f"({state['env_steps']} env steps, {len(state['pool'])} episodes pooled)")
+        return state
+
+    @property
+    def _log_file(self) -> Path:
+        return self.dir / "log.jsonl"
+
+    def _checkpoint(self, state: dict) -> None:
+        s = self.spec
+        dropped = []
+        if len(state["pool"]) > POOL_FACTOR * s.trajectories:
+            pool = state["pool"]
+            keep = thin_by_density(np.array([e[1] for e in pool]), np.array([e[2] for e in pool]),
+                                   s.trajectories, seed=s.seed * 100_003 + state["thin_rounds"])
+            kept = set(keep.tolist())
+            dropped = [e[0] for i, e in enumerate(pool) if i not in kept]
+            state["pool"] = [pool[i] for i in keep]
+            state["thin_rounds"] += 1
+        _atomic_pickle(self.dir / "state.pkl", state)
+        for i in dropped:  # after the commit: a kill in between is cleaned up on resume
+            (self.dir / "episodes" / f"ep-{i:07d}.npz").unlink(missing_ok=True)
+
+    # ---- episodes -------------------------------------------------------------------------------
+    def _split_episodes(self, state: dict, traj: dict) -> tuple[list, list]:
+        """Finished episodes of the rollout (appending to each env's unfinished one) ->
+        (kept [(index, return, cost, length)], all finished [(return, cost)])."""
+        s = self.spec
+        T, N = traj["done"].shape
+        kept, finished = [], []
+        for j in range(N):
+            ends = np.flatnonzero(traj["done"][:, j])
+            start = 0
+            for e in list(ends) + [None]:
+                stop = T if e is None else e + 1
+                seg = {k: traj[v][start:stop, j] for k, v in EPISODE_KEYS.items()}
+                prev = state["partial"][j]
+                if prev is not None:
+                    seg = {k: np.concatenate([prev[k], seg[k]]) for k in seg}
+                if e is None:
+                    state["partial"][j] = seg if seg["rewards"].size else None
+                    break
+                state["partial"][j] = None
+                start = stop
+                ret, cost = float(seg["rewards"].sum()), float(seg["costs"].sum())
+                finished.append((ret, cost))
+                if cost <= s.cost_cap and ret >= s.reward_min:
+                    i = state["next_index"]
+                    state["next_index"] += 1
+                    np.savez(self.dir / "episodes" / f"ep-{i:07d}.npz", **seg)
+                    kept.append((i, ret, cost, int(seg["rewards"].size)))
+        return kept, finished
+
+    # ---- the loop ---------------------------------------------------------------------------
+    def run(self, stop_after: Optional[int] = None) -> Optional[dict]:
+        """Generate (or continue) to the end of the budget; with `stop_after`, stop after that
+        many updates of this call (as an interruption would) and return None. Returns the info
+        of the finished generation (its pool is in `episodes/`)."""
+        from r2pac_jax.io import lock_directory
+
+        (self.dir / "episodes").mkdir(parents=True, exist_ok=True)
+        lock = lock_directory(self.dir)
+        try:
+            self._check_spec()
+            return self._run(stop_after)
+        finally:
+            lock.close()
+
+    def _run(self, stop_after: Optional[int]) -> Optional[dict]:
+        s = self.spec
+        state = self._restore()
+        params = jax.tree_util.tree_map(jnp.asarray, state["params"])
+        opt_state = jax.tree_util.tree_map(jnp.asarray, state["opt_state"])
+        env_state = state["env"]
+        if self.env.is_jax:
+            env_state = jax.tree_util.tree_map(jnp.asarray, env_state)
+        bar = None
+        if self.progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=s.updates * s.steps_per_update, initial=state["env_steps"],
+                       unit="step", unit_scale=True, desc=f"{s.task} PPO-Lagrangian",
+                       dynamic_ncols=True, smoothing=0.05)
+        done_here = 0
+        t_run = time.time()
+        try:
+            with open(self._log_file, "a") as logf:
+                while state["update"] < s.updates:
+                    if stop_after is not None and done_here >= stop_after:
+                        return None
+                    t0 = time.time()
+                    key, k_roll, k_upd = jax.random.split(jnp.asarray(state["key"]), 3)
+                    if self.jax_rollout is not None:
+                        env_state, traj = self.jax_rollout(params, env_state, k_roll)
+                        traj = _numpy(traj)
+                    else:
+                        env_state, traj = pl.rollout_batch(self.env, self.policy, params,
+                                                           env_state, k_roll, s.ppo.rollout_len)
+                    kept, finished = self._split_episodes(state, traj)
+                    state["pool"].extend(kept)
+                    state["finished"] += len(finished)
+                    if finished:
+                        state["last_return"] = float(np.mean([f[0] for f in finished]))
+                        state["last_cost"] = float(np.mean([f[1] for f in finished]))
+                    state["env_steps"] += s.steps_per_update
+                    limit = s.schedule.limit(state["env_steps"])
+                    state["pid"], state["lam"] = pl.pid_multiplier(
+                        state["pid"], state["last_cost"], limit, tuple(s.ppo.pid))
+                    params, opt_state, m = self.update(params, opt_state, pl.as_update_batch(traj),
+                                                       jnp.float32(state["lam"]), k_upd)
+                    state["update"] += 1
+                    state["key"] = np.asarray(key)
+                    row = dict(update=state["update"], env_steps=state["env_steps"],
+                               cost_limit=limit, multiplier=state["lam"],
+                               episode_return=state["last_return"],
+                               episode_cost=state["last_cost"], finished=len(finished),
+                               pooled=len(state["pool"]),
+                               policy_loss=float(m["policy_loss"]),
+                               value_loss=float(m["value_loss"]),
+                               steps_per_s=s.steps_per_update / (time.time() - t0))
+                    logf.write(json.dumps(row) + "\n")
+                    logf.flush()
+                    done_here += 1
+                    if state["update"] % s.checkpoint_every == 0 or state["update"] == s.updates:
+                        state["params"], state["opt_state"] = _numpy(params), _numpy(opt_state)
+                        state["env"] = _numpy(env_state)
+                        self._checkpoint(state)
+                    if bar is not None:
+                        bar.set_postfix(limit=f"{limit:.0f}", lam=f"{state['lam']:.2f}",
+                                        ret=f"{state['last_return']:.1f}",
+                                        cost=f"{state['last_cost']:.1f}",
+                                        pool=len(state["pool"]), refresh=False)
+                        bar.update(s.steps_per_update)
+        finally:
+            if bar is not None:
+                bar.close()
+        return dict(updates=state["update"], env_steps=state["env_steps"],
+                    finished_episodes=state["finished"], pooled=len(state["pool"]),
+                    wall_s_this_call=time.time() - t_run, pool=state["pool"])
+
+    # ---- the file ---------------------------------------------------------------------------
+    def assemble(self, pool: list) -> tuple[dict, dict]:
+        """The final DSRL arrays: the pool thinned to the target (index order) -> (arrays,
+        {thinning info})."""
+        s = self.spec
+        if not pool:
+            raise DatasetError(f"{s.task}: the generation kept no episode (cost <= {s.cost_cap}, "
+                               f"return >= {s.reward_min}) within {s.env_steps} env steps")
+        rets = np.array([e[1] for e in pool])
+        costs = np.array([e[2] for e in pool])
+        keep = thin_by_density(rets, costs, s.trajectories, seed=s.seed)
+        chosen = sorted(pool[i][0] for i in keep)
+        parts = [dict(np.load(self.dir / "episodes" / f"ep-{i:07d}.npz")) for i in chosen]
+        arrays = {k: np.concatenate([p[k] for p in parts]) for k in EPISODE_KEYS}
+        for k in ("terminals", "timeouts"):
+            arrays[k] = arrays[k].astype(bool)
+        return arrays, dict(pooled=len(pool), kept=len(chosen), grid="20x20 (cost, return)")
+
+    def plot(self, path: Path) -> None:
+        rows = [json.loads(ln) for ln in self._log_file.read_text().splitlines() if ln]
+        if not rows:
+            return
+        from r2pac_jax.report import _plt, _savefig
+
+        plt = _plt()
+        x = [r["env_steps"] for r in rows]
+        fig, axes = plt.subplots(1, 3, figsize=(13, 3.4))
+        axes[0].plot(x, [r["episode_return"] for r in rows], lw=1)
+        axes[0].set_title("episode return", fontsize=9)
+        axes[1].plot(x, [r["episode_cost"] for r in rows], lw=1, label="episode cost")
+        axes[1].plot(x, [r["cost_limit"] for r in rows], lw=1, ls="--", label="cost limit")
+        axes[1].legend(fontsize=7)
+        axes[1].set_title("episode cost and the scheduled limit", fontsize=9)
+        axes[2].plot(x, [r["multiplier"] for r in rows], lw=1)
+        axes[2].set_title("Lagrange multiplier (PID)", fontsize=9)
+        for ax in axes:
+            ax.set_xlabel("env steps")
+        fig.suptitle(f"{self.spec.task}: PPO-Lagrangian data generation", fontsize=10)
+        _savefig(fig, path)
+        plt.close(fig)
+
+
+def needed_disk_bytes(task: TaskSpec, spec: GenSpec) -> int:
+    """Disk for the pool at its largest plus the final file (float32 arrays, both copies)."""
+    per_step = 4 * (2 * task.obs_dim + task.act_dim + 2) + 2
+    return int(per_step * task.episode_len * spec.trajectories * (POOL_FACTOR + 1.2))
+
+
+def check_disk(task: TaskSpec, spec: GenSpec, where: Path) -> None:
+    where.mkdir(parents=True, exist_ok=True)
+    need = needed_disk_bytes(task, spec)
+    free = shutil.disk_usage(where).free
+    if free < need:
+        raise DatasetError(f"{where}: {free / 2**30:.1f} GiB free, generating {spec.trajectories} "
+                           f"{task.name} trajectories needs about {need / 2**30:.1f} GiB; free "
+                           "space or pass a smaller --trajectories")
+
+
+def generate_learned(task: TaskSpec, path: Path, trajectories: Optional[int] = None,
+                     env_steps: Optional[int] = None, seed: int = 0, physics: str = "auto",
+                     ppo: Optional[dict] = None, checkpoint_every: int = 10,
+                     progress: bool = True, log: Callable[[str], None] = print,
+                     stop_after: Optional[int] = None) -> Optional[Path]:
+    """Make (or continue making) the learned-behaviour file at `path`: generation in
+    `{path}.partial/`, then the file, its card, a composition plot, the training log and plot.
+    Returns the path, or None when `stop_after` stopped it early (resumable)."""
+    import resource
+
+    from r2pac_jax.data.dsrl import validate, write_dsrl
+    from r2pac_jax.data.factory import card_path, make_card
+    from r2pac_jax.io import atomic_write_json
+    from r2pac_jax.report import plot_composition
+
+    spec = make_spec(task, trajectories, env_steps, seed, physics, ppo, checkpoint_every)
+    partial = Path(f"{path}.partial")
+    check_disk(task, spec, path.parent)
+    gen = Generation(task, spec, partial, log=log, progress=progress)
+    t0 = time.time()
+    info = gen.run(stop_after)
+    if info is None:
+        return None
+    arrays, thin = gen.assemble(info.pop("pool"))
+    ds = validate(arrays, str(path), task.obs_dim, task.act_dim, task.name)
+    c = task.collection
+    card = make_card(task, ds, seed, spec.trajectories,
+                     f"PPO-Lagrangian (observation-based, PID multiplier) under DSRL's cost "
+                     f"schedule {spec.schedule.start:g} -> {spec.schedule.end:g}, trajectories "
+                     f"kept along training (data v{DATA_VERSION})")
+    card.update(
+        data_version=DATA_VERSION, source="ppo-lagrangian", physics=spec.physics,
+        generation=dict(spec.to_dict(), **info, wall_s_last_call=time.time() - t0,
+                        peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
+        thinning=thin, dsrl_env_steps=c.env_steps, dsrl_trajectories=c.trajectories,
+        budget_below_dsrl=spec.env_steps < c.env_steps,
+        trajectories_below_target=ds.episode_sums()[0].size < spec.trajectories)
+    write_dsrl(path, ds, attrs={"task": task.name, "generated": True, "seed": seed,
+                                "source": "ppo-lagrangian", "data_version": DATA_VERSION})
+    rets, costs = ds.episode_sums()
+    plot_composition(rets, costs, task.kappa, path.with_suffix(".png"),
+                     f"{task.name} PPO-Lagrangian v{DATA_VERSION} (seed {seed}, {rets.size} "
+                     "trajectories)")
+    shutil.copyfile(partial / "log.jsonl", path.with_suffix(".log.jsonl"))
+    gen.plot(path.with_suffix(".training.png"))
+    atomic_write_json(card_path(path), card)  # last: marks the dataset complete
+    shutil.rmtree(partial, ignore_errors=True)
+    return path
