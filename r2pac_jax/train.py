@@ -182,6 +182,11 @@ def main(argv=None) -> int:
         if args.resume and not (out / "checkpoints").exists():
             log(f"note: --resume: {out} holds no checkpoint yet; starting afresh")
         ds = load_task_dataset(task, args.dataset, announce=log)
+        from r2pac_jax.data.checks import checks_path
+
+        if not checks_path(ds.source).exists():
+            log(f"note: {ds.source} has not been checked (coverage, imitability): "
+                f"python -m r2pac_jax.data check {ds.source}")
         for a in algos:
             check_run(cfgs[a], task, ds)
         results = {}

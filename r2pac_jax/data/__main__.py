@@ -1,5 +1,6 @@
 """`python -m r2pac_jax.data make --task TASK [--source scripted|ppo-lagrangian]
-[--trajectories N] [--seed S] [--budget ENV_STEPS] [--physics auto|mujoco|mjx] [--force]`."""
+[--trajectories N] [--seed S] [--budget ENV_STEPS] [--physics auto|mujoco|mjx] [--force]`;
+`python -m r2pac_jax.data check FILE [--task T] [--fast] [--seeds 100,101,102]`."""
 from __future__ import annotations
 
 import argparse
@@ -34,7 +35,15 @@ def main(argv=None) -> int:
                          "mujoco | mjx")
     mk.add_argument("--force", action="store_true",
                     help="discard an existing file (and a generation's partial state) first")
+    ck = sub.add_parser("check", help="coverage, temptation and imitability of a dataset file "
+                                      "(writes FILE.checks.json)")
+    ck.add_argument("file")
+    ck.add_argument("--task", default=None, help="the file's task (default: read from the file)")
+    ck.add_argument("--fast", action="store_true", help="coverage only (no cloner training)")
+    ck.add_argument("--seeds", default="100,101,102")
     args = ap.parse_args(argv)
+    if args.cmd == "check":
+        return _check(args)
 
     from tqdm import tqdm
 
@@ -76,6 +85,26 @@ def main(argv=None) -> int:
         return 2
     print(f"wrote {path} in {time.time() - t0:.1f} s; card {factory.card_path(path)}; "
           f"plot {path.with_suffix('.png')}")
+    return 0
+
+
+def _check(args) -> int:
+    import json
+
+    from r2pac_jax.config import ConfigError
+    from r2pac_jax.data.checks import check_file, checks_path
+    from r2pac_jax.data.dsrl import DatasetError
+    from r2pac_jax.tasks import UnknownTaskError
+
+    try:
+        seeds = [int(x) for x in args.seeds.split(",") if x]
+        res = check_file(args.file, args.task, fast=args.fast, seeds=seeds)
+    except (DatasetError, UnknownTaskError, ConfigError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(json.dumps(res, indent=1))
+    print(f"{'passed' if res['passed'] else 'failed: ' + ', '.join(res['failed'])}; "
+          f"written to {checks_path(args.file)}")
     return 0
 
 
