@@ -203,3 +203,35 @@ def test_generation_on_mjx():
     p = collect.generate_learned(task, d / "hop.hdf5", **kw)
     card = json.loads(factory.card_path(p).read_text())
     assert card["physics"] == "mjx" and card["generation"]["updates"] == 2
+
+
+def test_train_prefers_learned_data_and_warns_on_scripted(tmp_path, monkeypatch):
+    from r2pac_jax.data import load_task_dataset
+    from r2pac_jax.data.dsrl import validate, write_dsrl
+
+    monkeypatch.setenv("R2PAC_DATA_DIR", str(tmp_path))
+    monkeypatch.setenv("DSRL_DATASET_DIR", str(tmp_path / "none"))
+    task = get_task("HopperVelocity")
+    rng = np.random.default_rng(0)
+    n = 20
+    obs = rng.normal(size=(n + 1, task.obs_dim)).astype(np.float32)
+    arrays = dict(observations=obs[:-1], next_observations=obs[1:],
+                  actions=np.zeros((n, task.act_dim), np.float32),
+                  rewards=np.ones(n, np.float32), costs=np.zeros(n, np.float32),
+                  terminals=np.zeros(n, bool), timeouts=np.arange(n) == n - 1)
+    ds = validate(arrays, "x")
+    scripted = factory.dataset_path(task, 0, factory.default_trajectories(task))
+    write_dsrl(scripted, ds)
+    factory.card_path(scripted).write_text("{}")
+    said = []
+    got = load_task_dataset(task, announce=said.append)
+    assert got.source == str(scripted)
+    assert any("warning: " in m and "scripted (data v1)" in m and "--source ppo-lagrangian" in m
+               for m in said)
+    learned = factory.dataset_path(task, 0, task.collection.trajectories, "ppo-lagrangian")
+    assert learned.name == "HopperVelocity-generated-ppolag-v2-s0-n2240.hdf5"
+    write_dsrl(learned, ds)
+    factory.card_path(learned).write_text("{}")
+    said.clear()
+    assert load_task_dataset(task, announce=said.append).source == str(learned)
+    assert not any("warning" in m for m in said)

@@ -15,6 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from r2pac_jax.data.dsrl import DatasetError
 from r2pac_jax.data.factory import collect
 from r2pac_jax.tasks import get_task
 
@@ -32,12 +33,17 @@ def main() -> None:
         t_len = args.steps_per_update // n
         d = Path(tempfile.mkdtemp())
         t0 = time.time()
-        collect.generate_learned(task, d / "t.hdf5", trajectories=10_000,
-                                 env_steps=n * t_len * args.updates, physics=args.physics,
-                                 ppo=dict(num_envs=n, rollout_len=t_len), checkpoint_every=2,
-                                 progress=False, log=lambda m: None)
+        try:
+            collect.generate_learned(task, d / "t.hdf5", trajectories=10_000,
+                                     env_steps=n * t_len * args.updates, physics=args.physics,
+                                     ppo=dict(num_envs=n, rollout_len=t_len), checkpoint_every=2,
+                                     progress=False, log=lambda m: None)
+        except DatasetError:  # no episode finished in so few steps: the log is still there
+            pass
         wall = time.time() - t0
         log = d / "t.log.jsonl"  # the finished generation's log beside its file
+        if not log.exists():
+            log = d / "t.hdf5.partial" / "log.jsonl"
         rows = [json.loads(ln) for ln in log.read_text().splitlines()]
         rates = [r["steps_per_s"] for r in rows[1:]]
         print(json.dumps(dict(task=task.name, num_envs=n, rollout_len=t_len,

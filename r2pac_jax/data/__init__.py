@@ -13,8 +13,9 @@ __all__ = ["Dataset", "DatasetError", "find_dsrl_file", "load_dsrl", "write_dsrl
 
 def load_task_dataset(task: TaskSpec, dataset: Optional[str] = None,
                       announce: Callable[[str], None] = print) -> Dataset:
-    """The training data, in order: `dataset`; a DSRL file on disk; a cached generated dataset;
-    else a freshly generated one (announced)."""
+    """The training data, in order: `dataset`; a DSRL file on disk; a cached learned-behaviour
+    dataset (data v2); a cached scripted one (with a warning on the MuJoCo tasks); else a freshly
+    generated scripted one (announced)."""
     from r2pac_jax.data import factory
 
     kw = dict(obs_dim=task.obs_dim, act_dim=task.act_dim, task_name=task.name)
@@ -25,9 +26,18 @@ def load_task_dataset(task: TaskSpec, dataset: Optional[str] = None,
     if path is not None:
         announce(f"dataset: {path} (DSRL file)")
         return load_dsrl(path, **kw)
+    path = factory.find_learned(task)
+    if path is not None:
+        announce(f"dataset: {path} (learned behaviour, generated earlier; see its .json card)")
+        return load_dsrl(path, **kw)
     path = factory.find_cached(task)
     if path is not None:
         announce(f"dataset: {path} (generated earlier, see its .json card)")
+        if task.collection is not None and task.family != "demo":
+            announce(f"warning: {path.name} is scripted (data v1) data, whose safe trajectories "
+                     "an observation-based learner cannot imitate (experiments/data_factory/"
+                     "QUALITY_BAR.md); the learned data: python -m r2pac_jax.data make --task "
+                     f"{task.name} --source ppo-lagrangian")
         return load_dsrl(path, **kw)
     if not factory.has_source(task):
         raise DatasetError(

@@ -102,6 +102,22 @@ def find_cached(task: TaskSpec) -> Optional[Path]:
     return found[0]
 
 
+def find_learned(task: TaskSpec) -> Optional[Path]:
+    """A complete learned-behaviour dataset (data v2+) for the task: DSRL's size and budget
+    first, then the largest file."""
+    d = cache_dir()
+    if not d.is_dir() or task.collection is None:
+        return None
+    found = [p for p in d.glob(f"{task.name}-generated-ppolag-v*-s*-n*.hdf5")
+             if card_path(p).exists()]
+    if not found:
+        return None
+    default = dataset_path(task, 0, task.collection.trajectories, "ppo-lagrangian")
+    if default in found:
+        return default
+    return max(found, key=lambda p: (p.stat().st_size, p.name))
+
+
 def default_trajectories(task: TaskSpec) -> int:
     return _source(task, "scripted")["default_trajectories"]
 

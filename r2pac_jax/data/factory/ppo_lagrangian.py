@@ -32,8 +32,11 @@ import optax
 
 @dataclasses.dataclass(frozen=True)
 class PPOLagConfig:
-    num_envs: int = 10
-    rollout_len: int = 1000  # steps per env between updates (DSRL: 10 episodes per collect)
+    # 10k env steps per update as DSRL's epoch; 100 envs x 100 steps rather than DSRL's 10
+    # episodes per collect: stepping 100 episodes per Python step is 1.3-4x faster on the CPU
+    # (GENERATION.md), and GAE bootstraps the cut fragments
+    num_envs: int = 100
+    rollout_len: int = 100
     epochs: int = 4  # DSRL's repeat_per_collect
     minibatches: int = 4
     lr: float = 5e-4  # DSRL's

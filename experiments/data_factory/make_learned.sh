@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# The learned-behaviour data (data v2) of every MuJoCo task at DSRL's size and budget, one task
+# after another, each resumable: rerun this script after a kill or a session's end and every
+# task continues from its last checkpoint (finished files are skipped). Then the data checks.
+#
+#   nice -n 10 bash experiments/data_factory/make_learned.sh [TASK ...] > runs/make_learned.log 2>&1
+#
+# Order (the data issue): the six Car tasks and the paper's three velocity tasks first, the
+# quickest first within them (estimates in GENERATION.md), then the rest.
+set -uo pipefail
+cd "$(dirname "$0")/../.."
+TASKS=("$@")
+if [ ${#TASKS[@]} -eq 0 ]; then
+  TASKS=(CarGoal1 HalfCheetahVelocity SwimmerVelocity CarButton1 AntVelocity CarButton2 CarPush1
+         CarPush2 CarGoal2 PointGoal1 PointButton1 HopperVelocity PointButton2 PointPush2
+         PointPush1 Walker2dVelocity PointGoal2)
+fi
+for t in "${TASKS[@]}"; do
+  echo "== $t $(date -u +%FT%TZ)"
+  python -m r2pac_jax.data make --task "$t" --source ppo-lagrangian || echo "!! $t failed ($?)"
+  f=$(python -c "from r2pac_jax.data import factory; from r2pac_jax.tasks import get_task; t = get_task('$t'); print(factory.dataset_path(t, 0, t.collection.trajectories, 'ppo-lagrangian'))")
+  if [ -f "$f" ] && [ ! -f "$f.checks.json" ]; then
+    echo "== checks $t $(date -u +%FT%TZ)"
+    python -m r2pac_jax.data check "$f" | tail -1
+  fi
+done
+echo "== done $(date -u +%FT%TZ)"
