@@ -15,17 +15,37 @@ class Checkpointer:
     def __init__(self, directory, max_to_keep: int = 2):
         import orbax.checkpoint as ocp
 
+        from r2pac_jax.io import writing
+
         self._ocp = ocp
         self.directory = Path(directory).absolute()
         opts = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True,
                                             enable_async_checkpointing=False)
-        self._mgr = ocp.CheckpointManager(self.directory, options=opts)
+        with writing(self.directory, "the checkpoint directory"):
+            self._mgr = ocp.CheckpointManager(self.directory, options=opts)
 
     def save(self, step: int, state: Any, meta: dict) -> None:
+        from r2pac_jax.io import writing
+
         ocp = self._ocp
-        self._mgr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state),
-                                                      meta=ocp.args.JsonSave(meta)), force=True)
-        self._mgr.wait_until_finished()
+        last = self.latest_step()
+        kept = (f"the last complete checkpoint, step {last}, is kept" if last is not None
+                else "no earlier checkpoint exists")
+        import logging
+
+        absl = logging.getLogger("absl")
+        level = absl.level
+        # orbax logs a failed write's whole traceback before raising it; the raised error is
+        # reported (as one line when it is a write failure, in full otherwise)
+        absl.setLevel(logging.CRITICAL)
+        try:
+            with writing(self.directory / str(step), "the checkpoint", kept):
+                self._mgr.save(step, args=ocp.args.Composite(
+                    state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)),
+                    force=True)
+                self._mgr.wait_until_finished()
+        finally:
+            absl.setLevel(level)
 
     def latest_step(self) -> Optional[int]:
         return self._mgr.latest_step()

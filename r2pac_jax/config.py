@@ -134,6 +134,31 @@ def resolve_preset(preset: str) -> tuple[str, str]:
     return preset, f"preset '{preset}'"
 
 
+def switch_keys() -> dict[str, list[str]]:
+    """Keys that algorithm variants set (e.g. reward_penalty for r2pac-no-penalty) -> the
+    `--algo` names that set them: users choose these with --algo, never with --set."""
+    from r2pac_jax.agents import algo_module, algo_names
+
+    out: dict[str, list[str]] = {}
+    for name in algo_names():
+        for k in algo_module(name).VARIANTS[name]:
+            out.setdefault(k, []).append(name)
+    return out
+
+
+def refuse_user_key(key: str, where: str) -> None:
+    """ConfigError for keys a user sets elsewhere: the run's identity, seeds, variant switches."""
+    if key in RUN_IDENTITY:
+        raise ConfigError(f"{where} {key}=...: {key} is chosen with --{key}, not here")
+    if key == "seeds":
+        raise ConfigError(f"{where} seeds=...: the number of seeds is chosen with --seeds N "
+                          "(sweep files: `seeds = N` at the top level)")
+    sw = switch_keys()
+    if key in sw:
+        raise ConfigError(f"{where} {key}=...: {key} is an algorithm switch; choose the variant "
+                          f"with --algo ({', '.join(sw[key])})")
+
+
 def field_types(algo: str) -> dict[str, type]:
     """Every key `algo` accepts (generic and its own) -> the type of its default."""
     from r2pac_jax.agents import algo_module
@@ -209,7 +234,7 @@ def validate_config(cfg: Config, spec: Optional[TaskSpec] = None) -> None:
     for k, choices in CHOICES.items():
         if getattr(cfg, k) not in choices:
             raise ConfigError(f"{k}={getattr(cfg, k)!r} is not one of {choices}")
-    check_range("discount", cfg.discount, 0.0, 1.0, low_open=True, high_open=True)
+    check_range("discount", cfg.discount, 0, 1, low_open=True, high_open=True)
     if cfg.chunk_len < 1:
         raise ConfigError(f"chunk_len must be >= 1, got {cfg.chunk_len}")
     if cfg.chunk_len > spec.episode_len:
@@ -219,7 +244,7 @@ def validate_config(cfg: Config, spec: Optional[TaskSpec] = None) -> None:
         if getattr(cfg, k) < 1:
             raise ConfigError(f"{k} must be >= 1, got {getattr(cfg, k)}")
     for k in ("reward_scale", "cost_scale"):
-        check_range(k, getattr(cfg, k))
+        check_range(k, getattr(cfg, k), 0, low_open=True)
     if cfg.eval_episodes < 0:
         raise ConfigError(f"eval_episodes must be >= 0, got {cfg.eval_episodes}")
     for k in ("steps", "eval_every", "checkpoint_every"):

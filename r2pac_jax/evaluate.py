@@ -178,8 +178,21 @@ def main(argv=None) -> int:
     ap.add_argument("--candidates", type=int, default=None)
     ap.add_argument("--physics", default="auto")
     args = ap.parse_args(argv)
-    out = evaluate_run(args.run_dir, args.episodes, args.selection, args.guidance,
-                       args.candidates, args.physics)
+    import sys
+
+    from r2pac_jax.config import ConfigError
+    from r2pac_jax.tasks import EnvUnavailableError, UnknownTaskError
+
+    try:
+        if args.episodes < 1:
+            raise ConfigError(f"--episodes must be >= 1, got {args.episodes}")
+        if args.candidates is not None and args.candidates < 1:
+            raise ConfigError(f"--candidates must be >= 1, got {args.candidates}")
+        out = evaluate_run(args.run_dir, args.episodes, args.selection, args.guidance,
+                           args.candidates, args.physics)
+    except (ConfigError, FileNotFoundError, UnknownTaskError, EnvUnavailableError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     nr, nc = out["normalized_reward"], out["normalized_cost"]
     for s, r, c in zip(out["seeds"], nr, nc):
         print(f"seed {s}: normalized reward {r:.3f}, normalized cost {c:.3f}")

@@ -2,10 +2,83 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import tempfile
 from pathlib import Path
+from typing import Optional
+
+
+class WriteError(OSError):
+    """The project could not write one of its files (disk full, no permission, a file where a
+    directory should be, a file-size limit); the message names the path and the fix."""
+
+    def __str__(self) -> str:
+        return self.strerror or super().__str__()
+
+
+_WRITE_HINTS = {
+    errno.ENOSPC: "no space left on the disk",
+    errno.EDQUOT: "the disk quota is exhausted",
+    errno.EFBIG: "the file grew past the file-size limit (ulimit -f)",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "permission denied",
+    errno.EROFS: "the file system is read-only",
+    errno.ENOTDIR: "a path component is a file, not a directory",
+    errno.EEXIST: "a file stands where a directory should be",
+}
+_MESSAGE_HINTS = (("No space left", errno.ENOSPC), ("RESOURCE_EXHAUSTED", errno.ENOSPC),
+                  ("Disk quota", errno.EDQUOT), ("File too large", errno.EFBIG),
+                  ("Permission denied", errno.EACCES), ("Read-only file system", errno.EROFS),
+                  ("Not a directory", errno.ENOTDIR))
+
+
+def write_failure(exc: BaseException) -> Optional[int]:
+    """The errno of a write failure inside `exc` (its cause chain, or a library's message that
+    wraps one, as orbax's and tensorstore's do), or None if it is not one."""
+    seen = 0
+    e: Optional[BaseException] = exc
+    while e is not None and seen < 10:
+        if isinstance(e, OSError) and e.errno in _WRITE_HINTS:
+            return e.errno
+        text = str(e)
+        for needle, code in _MESSAGE_HINTS:
+            if needle in text:
+                return code
+        e = e.__cause__ or e.__context__
+        seen += 1
+    return None
+
+
+def as_write_error(exc: BaseException, path, what: str, kept: str = "") -> WriteError:
+    """A WriteError naming `what` at `path`, the cause, and what is kept (or `exc` itself re-
+    raised by the caller when it is no write failure)."""
+    code = write_failure(exc)
+    hint = _WRITE_HINTS.get(code, "the write failed")
+    fix = {errno.ENOSPC: "free disk space (or choose another --out) and rerun",
+           errno.EDQUOT: "free space in your quota and rerun",
+           errno.EFBIG: "raise the file-size limit (ulimit -f) and rerun",
+           errno.ENOTDIR: "choose a directory path",
+           errno.EEXIST: "choose a directory path, not a file",
+           }.get(code, "choose a writable location and rerun")
+    msg = f"cannot write {what} {path}: {hint}; {fix}"
+    if kept:
+        msg += f" ({kept})"
+    return WriteError(code or errno.EIO, msg)
+
+
+@contextlib.contextmanager
+def writing(path, what: str, kept: str = ""):
+    """Turn a write failure inside the block into a WriteError naming `what` and `path`."""
+    try:
+        yield
+    except WriteError:
+        raise
+    except Exception as e:  # noqa: BLE001 - re-raised unchanged unless it is a write failure
+        if write_failure(e) is None:
+            raise
+        raise as_write_error(e, path, what, kept) from e
 
 
 def _umask_mode() -> int:
@@ -20,17 +93,18 @@ def atomic_path(path, suffix: str = ".tmp"):
     replaces `path` at once (umask's usual mode), otherwise it is removed. Every result file
     (JSON, text, PNG) is written through this one mechanism."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        # mkstemp creates 0600 files; results are shared, so give them the umask's usual mode
-        os.chmod(tmp, _umask_mode())
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with writing(path, "the file", "the previous version, if any, is untouched"):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+        os.close(fd)
+        try:
+            yield Path(tmp)
+            # mkstemp creates 0600 files; results are shared, so give them the umask's usual mode
+            os.chmod(tmp, _umask_mode())
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
 
 
 def atomic_write_text(path, text: str) -> Path:
@@ -62,6 +136,43 @@ class DirectoryBusy(RuntimeError):
     """Another live process is writing the same run directory."""
 
 
+def lock_file(path, what: str = "file"):
+    """Hold `{path}.lock` exclusively (flock; released when the returned file is closed or the
+    process ends, even by SIGKILL); DirectoryBusy when another live process holds it."""
+    import fcntl
+    import socket
+
+    lock = Path(f"{path}.lock")
+    with writing(lock, "the lock file"):
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        f = open(lock, "a+")
+    try:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        f.seek(0)
+        holder = f.read().strip() or "an unknown process"
+        f.close()
+        raise DirectoryBusy(f"the {what} {path} is being written by {holder}; wait for it to "
+                            "finish or stop it, then rerun") from None
+    f.seek(0)
+    f.truncate()
+    f.write(f"pid {os.getpid()} on {socket.gethostname()}\n")
+    f.flush()
+    return f
+
+
+def remove_orphaned_temporaries(path) -> list[Path]:
+    """Delete the temporaries `atomic_path` leaves beside `path` when its writer was killed.
+    Call it only while holding the lock of `path` (no live writer then). Returns what went."""
+    path = Path(path)
+    gone = []
+    for p in path.parent.glob(f".{path.name}.*"):
+        if p.is_file():
+            p.unlink(missing_ok=True)
+            gone.append(p)
+    return gone
+
+
 def lock_directory(path):
     """Hold DIR/.lock exclusively until the returned file is closed or this process ends.
 
@@ -72,8 +183,12 @@ def lock_directory(path):
     import socket
 
     path = Path(path)
-    path.mkdir(parents=True, exist_ok=True)
-    f = open(path / ".lock", "a+")
+    if path.exists() and not path.is_dir():
+        raise WriteError(errno.EEXIST, f"{path} is a file, not a directory: choose a directory "
+                         "path (for --out, a new or existing run directory)")
+    with writing(path, "the directory"):
+        path.mkdir(parents=True, exist_ok=True)
+        f = open(path / ".lock", "a+")
     try:
         fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:

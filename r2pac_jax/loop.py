@@ -22,7 +22,7 @@ import numpy as np
 from r2pac_jax.agents import make_agent
 from r2pac_jax.config import Config, ConfigError, default_hparams
 from r2pac_jax.data.dsrl import Dataset
-from r2pac_jax.io import atomic_write_json, atomic_write_text, lock_directory
+from r2pac_jax.io import atomic_write_json, lock_directory
 from r2pac_jax.lanes import Lanes, place
 from r2pac_jax.tasks import TaskSpec
 
@@ -143,6 +143,7 @@ class Run:
             cfg, task.obs_dim, task.act_dim)
         self.agent.check_data(task, ds)
         self.data = self.agent.make_data(task, ds)
+        self.dataset_info = dict(source=ds.source, sha256=ds.digest(), transitions=int(ds.size))
         self.evaluator = (lane_evaluator(cfg, task, cfg.eval_episodes, physics)
                           if cfg.eval_episodes > 0 else None)
 
@@ -187,6 +188,14 @@ class Run:
         except FileNotFoundError:
             return
         diff = config_changes(old_cfg, self.cfg)
+        import json
+
+        stored = json.loads((self.out / "config.json").read_text()).get("dataset", {})
+        if stored.get("sha256") not in (None, self.dataset_info["sha256"]):
+            diff.append(f"dataset: {stored.get('source')} ({stored.get('transitions')} "
+                        f"transitions, sha256 {stored['sha256'][:12]}) -> "
+                        f"{self.dataset_info['source']} ({self.dataset_info['transitions']}, "
+                        f"{self.dataset_info['sha256'][:12]})")
         for k in ("seeds", "cell_hparams"):
             if old_lanes.get(k) != getattr(self.lanes, k):
                 diff.append(f"{k}: {old_lanes.get(k)} -> {getattr(self.lanes, k)}")
@@ -218,7 +227,10 @@ class Run:
             raise ConfigError(f"{self.out} already holds a run (checkpoint at step "
                               f"{ckpt.latest_step()}); pass --resume to continue it or choose "
                               "another --out")
-        atomic_write_text(self.out / "config.json", cfg.to_json())
+        import json
+
+        atomic_write_json(self.out / "config.json",
+                          dict(json.loads(cfg.to_json()), dataset=self.dataset_info))
         atomic_write_json(self.out / "lanes.json", dict(
             seeds=self.lanes.seeds, cells=self.lanes.cells, cell_hparams=self.lanes.cell_hparams,
             task=self.task.name, dataset=self.dataset_label, physics=self.physics))

@@ -9,6 +9,19 @@ from typing import Optional
 from r2pac_jax.io import atomic_write_text
 
 
+def _rows(f: Path) -> list[dict]:
+    """The rows of a JSONL file; a line cut short by a failed write (only the last can be) is
+    dropped."""
+    out = []
+    for ln in f.read_text().splitlines():
+        if ln.strip():
+            try:
+                out.append(json.loads(ln))
+            except json.JSONDecodeError:
+                continue
+    return out
+
+
 class MetricsLog:
     """Appends one JSON object per line to `DIR/NAME.jsonl`; mirrors scalars to TensorBoard.
 
@@ -22,8 +35,8 @@ class MetricsLog:
         self.dir.mkdir(parents=True, exist_ok=True)
         if resume_step is not None:
             for f in self.dir.glob("*.jsonl"):
-                keep = [ln for ln in f.read_text().splitlines()
-                        if ln.strip() and json.loads(ln).get("step", 0) <= resume_step]
+                keep = [json.dumps(r, sort_keys=True) for r in _rows(f)
+                        if r.get("step", 0) <= resume_step]
                 atomic_write_text(f, "".join(k + "\n" for k in keep))
         self._tb = None
         if tensorboard is None:  # default: on, unless R2PAC_NO_TENSORBOARD=1
@@ -38,8 +51,12 @@ class MetricsLog:
                 self._tb = None
 
     def write(self, name: str, row: dict, tb_prefix: Optional[str] = None) -> None:
-        with open(self.dir / f"{name}.jsonl", "a") as f:
-            f.write(json.dumps(row, sort_keys=True) + "\n")
+        from r2pac_jax.io import writing
+
+        path = self.dir / f"{name}.jsonl"
+        with writing(path, "the log", "rows written so far are kept"):
+            with open(path, "a") as f:
+                f.write(json.dumps(row, sort_keys=True) + "\n")
         if self._tb is not None and "step" in row:
             prefix = tb_prefix or name
             for k, v in row.items():
@@ -50,7 +67,7 @@ class MetricsLog:
         f = self.dir / f"{name}.jsonl"
         if not f.exists():
             return []
-        return [json.loads(ln) for ln in f.read_text().splitlines() if ln.strip()]
+        return _rows(f)
 
     def close(self) -> None:
         if self._tb is not None:

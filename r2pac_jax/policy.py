@@ -13,12 +13,18 @@ from r2pac_jax.config import Config
 def read_run(run_dir) -> tuple[Config, dict]:
     """The config and lanes description of a run directory (FileNotFoundError if it is none)."""
     run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"{run_dir}: no such run directory")
     cfg_file, lanes_file = run_dir / "config.json", run_dir / "lanes.json"
     if not cfg_file.exists() or not lanes_file.exists():
         raise FileNotFoundError(f"{run_dir} holds no run (config.json and lanes.json are written "
                                 "when training starts)")
-    return (Config.from_dict(json.loads(cfg_file.read_text())),
-            json.loads(lanes_file.read_text()))
+    try:
+        return (Config.from_dict(json.loads(cfg_file.read_text())),
+                json.loads(lanes_file.read_text()))
+    except (ValueError, KeyError, TypeError) as e:
+        raise FileNotFoundError(f"{run_dir}: config.json or lanes.json is damaged ({e}); train "
+                                "the run again into a new --out") from None
 
 
 def restore_policy_params(run_dir, agent) -> tuple[dict, dict]:
@@ -26,9 +32,10 @@ def restore_policy_params(run_dir, agent) -> tuple[dict, dict]:
     from r2pac_jax.checkpoint import restore_policy
 
     run_dir = Path(run_dir)
-    if not (run_dir / "policy").exists():
+    if not (run_dir / "policy").exists() or not any((run_dir / "policy").glob("[0-9]*")):
         raise FileNotFoundError(f"{run_dir} holds no finished run (policy/ is written when "
-                                "training ends)")
+                                "training ends): if it was killed, continue it with python -m "
+                                f"r2pac_jax.train ... --resume --out {run_dir}")
     lanes = json.loads((run_dir / "lanes.json").read_text())
     return restore_policy(run_dir / "policy", agent, len(lanes["seeds"])), lanes
 

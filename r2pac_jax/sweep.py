@@ -28,8 +28,9 @@ from pathlib import Path
 from typing import Any, Optional
 
 from r2pac_jax.agents import algo_module
-from r2pac_jax.config import ConfigError, field_types, make_config, resolve_preset
-from r2pac_jax.io import DirectoryBusy, atomic_write_json, atomic_write_text
+from r2pac_jax.config import (ConfigError, field_types, make_config, refuse_user_key,
+                              resolve_preset)
+from r2pac_jax.io import DirectoryBusy, WriteError, atomic_write_json, atomic_write_text
 
 TOP_KEYS = {"name", "description", "task", "tasks", "algo", "algos", "preset", "seeds",
             "eval_episodes", "physics", "dataset", "config", "grid"}
@@ -162,6 +163,13 @@ def load_sweep(path, task_override: Optional[str] = None) -> Sweep:
         if k in fixed:
             raise SweepError(f"{path} [config]: {k} is set at the top level (or as a grid "
                              "axis), not in [config]")
+    for where, keys in ((f"{path} [config]", fixed), (f"{path} [grid]", grid)):
+        for k in keys:
+            if k not in ("task", "algo"):
+                try:
+                    refuse_user_key(k, where)
+                except ConfigError as e:
+                    raise SweepError(str(e)) from None
     for k in fixed:
         fixed[k] = _check_value(k, fixed[k], f"{path} [config]", types)
     axes = {}
@@ -228,8 +236,11 @@ def check_data(sweep: Sweep) -> None:
     for name in sorted({c.task for c in sweep.cells}):
         task = get_task(name)
         if sweep.dataset:
+            from r2pac_jax.data.dsrl import load_dsrl
+
             if not Path(sweep.dataset).expanduser().exists():
                 raise SweepError(f"dataset {sweep.dataset} does not exist")
+            load_dsrl(sweep.dataset, task.obs_dim, task.act_dim, task.name)  # readable, fits
             continue
         if find_dsrl_file(task) or factory.find_cached(task) or factory.has_source(task):
             continue
@@ -425,6 +436,10 @@ def plot_sweep(rows: list[dict], axes: list[str], out: Path) -> None:
 
 
 def main(argv=None) -> int:
+    from r2pac_jax.data.chunks import ChunkError
+    from r2pac_jax.data.dsrl import DatasetError
+    from r2pac_jax.loop import TrainingDiverged
+
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         if argv and argv[0] == "report":
@@ -457,7 +472,8 @@ def main(argv=None) -> int:
                         args.task, progress=not args.no_progress)
         print((out / "table.md").read_text() if (out / "table.md").exists() else "")
         return 0
-    except (SweepError, ConfigError, DirectoryBusy) as e:
+    except (SweepError, ConfigError, DirectoryBusy, WriteError, DatasetError, ChunkError,
+            TrainingDiverged) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
 

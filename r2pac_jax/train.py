@@ -15,8 +15,9 @@ from pathlib import Path
 from typing import Sequence
 
 from r2pac_jax.agents import algo_module, algo_names
-from r2pac_jax.config import PRESETS, Config, ConfigError, field_types, make_config, resolve_preset
-from r2pac_jax.io import DirectoryBusy, atomic_write_text
+from r2pac_jax.config import (PRESETS, Config, ConfigError, field_types, make_config,
+                              refuse_user_key, resolve_preset)
+from r2pac_jax.io import DirectoryBusy, WriteError, atomic_write_text
 from r2pac_jax.lanes import Lanes
 from r2pac_jax.loop import (Run, TrainingDiverged, chunk_dataset, compiled, make_block,  # noqa: F401
                             make_data, make_train)
@@ -37,8 +38,7 @@ def _parse_set(items: Sequence[str], algos: Sequence[str] = ("r2pac",)) -> dict:
             raise ConfigError(f"--set takes key=value, got {item!r}")
         k, v = item.split("=", 1)
         k = k.strip().replace("-", "_")
-        if k in ("task", "algo", "preset"):
-            raise ConfigError(f"--set {k}=...: {k} is chosen with --{k}, not with --set")
+        refuse_user_key(k, "--set")
         if k not in types:
             raise ConfigError(f"--set: unknown config key {k!r} for {', '.join(algos)}; known "
                               f"keys: {', '.join(sorted(types))}")
@@ -198,7 +198,7 @@ def main(argv=None) -> int:
                 progress=not args.no_progress, log=log, dataset_label=ds.source)
             results[a] = run.run(resume=args.resume)
     except (ConfigError, DatasetError, ChunkError, UnknownTaskError, EnvUnavailableError,
-            DirectoryBusy, TrainingDiverged) as e:
+            DirectoryBusy, TrainingDiverged, WriteError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     from r2pac_jax.report import results_table

@@ -146,7 +146,7 @@ def no_hparams(values: dict) -> None:
 def check_positive(name: str, value) -> None:
     from r2pac_jax.config import check_range
 
-    check_range(name, value, 0.0, low_open=True)
+    check_range(name, value, 0, low_open=True)
 
 
 def check_sizes(name: str, sizes) -> None:

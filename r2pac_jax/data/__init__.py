@@ -48,6 +48,9 @@ def load_task_dataset(task: TaskSpec, dataset: Optional[str] = None,
     n = factory.default_trajectories(task)
     announce(f"dataset: none found for {task.name}; generating {n} trajectories into "
              f"{factory.cache_dir()} (python -m r2pac_jax.data make --task {task.name})")
-    path = factory.generate_dataset(task, n, seed=0)
+    from tqdm import tqdm
+
+    with tqdm(total=n, unit="traj", desc=f"{task.name} data", dynamic_ncols=True) as bar:
+        path = factory.generate_dataset(task, n, seed=0, progress=bar.update)
     announce(f"dataset: {path} (generated)")
     return load_dsrl(path, **kw)

@@ -49,7 +49,7 @@ def main(argv=None) -> int:
 
     from r2pac_jax.data import factory
     from r2pac_jax.data.dsrl import DatasetError
-    from r2pac_jax.io import DirectoryBusy
+    from r2pac_jax.io import DirectoryBusy, WriteError
     from r2pac_jax.tasks import UnknownTaskError, get_task
 
     try:
@@ -80,7 +80,7 @@ def main(argv=None) -> int:
                 path = factory.generate_dataset(task, n, args.seed, progress=bar.update,
                                                 source=args.source, physics=args.physics,
                                                 force=args.force)
-    except (UnknownTaskError, DatasetError, DirectoryBusy) as e:
+    except (UnknownTaskError, DatasetError, DirectoryBusy, WriteError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     print(f"wrote {path} in {time.time() - t0:.1f} s; card {factory.card_path(path)}; "

@@ -64,6 +64,15 @@ class Dataset:
     def as_dict(self) -> dict[str, np.ndarray]:
         return {k: getattr(self, k) for k in KEYS}
 
+    def digest(self) -> str:
+        """sha256 of the arrays' contents (what a resumed run checks it trains on again)."""
+        import hashlib
+
+        h = hashlib.sha256()
+        for k in KEYS:
+            h.update(np.ascontiguousarray(getattr(self, k)).tobytes())
+        return h.hexdigest()
+
 
 def _fail(path, key, problem, fix) -> DatasetError:
     where = f"{path}" + (f", key '{key}'" if key else "")
@@ -157,6 +166,9 @@ def load_dsrl(path, obs_dim: Optional[int] = None, act_dim: Optional[int] = None
     if not path.exists():
         raise DatasetError(f"{path}: no such file. Fix: pass an existing --dataset path, or drop "
                            "--dataset to use DSRL's directory or generated data")
+    if path.is_dir():
+        raise DatasetError(f"{path} is a directory. Fix: pass the dataset's .hdf5 file itself "
+                           "(for example one of the files in it)")
     try:
         with h5py.File(path, "r") as f:
             arrays = {k: f[k][()] for k in KEYS if k in f}

@@ -168,6 +168,20 @@ def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: i
     except OSError as e:
         raise FactoryError(f"cache directory {path.parent} is not writable ({e}); set "
                            "R2PAC_DATA_DIR to a writable directory") from e
+    from r2pac_jax.io import lock_file, remove_orphaned_temporaries
+
+    lock = lock_file(path, "dataset")  # a second writer of this file is refused
+    try:
+        for p in (path, card_path(path), path.with_suffix(".png")):
+            remove_orphaned_temporaries(p)  # a killed writer's leftovers: none is alive now
+        return _generate_locked(task, src, n, seed, path, progress, plot, source, physics,
+                                env_steps, force, log, learned)
+    finally:
+        lock.close()
+
+
+def _generate_locked(task, src, n, seed, path, progress, plot, source, physics, env_steps, force,
+                     log, learned):
     if force:
         import shutil
 

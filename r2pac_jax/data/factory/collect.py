@@ -102,12 +102,15 @@ def _numpy(tree):
 
 
 def _atomic_pickle(path: Path, obj) -> None:
+    from r2pac_jax.io import writing
+
     tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        pickle.dump(obj, f, protocol=pickle.HIGHEST_PROTOCOL)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    with writing(path, "the generation checkpoint", "the previous checkpoint is kept"):
+        with open(tmp, "wb") as f:
+            pickle.dump(obj, f, protocol=pickle.HIGHEST_PROTOCOL)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
 
 
 EPISODE_KEYS = {"observations": "obs", "next_observations": "nobs", "actions": "act",
@@ -220,9 +223,14 @@ class Generation:
                 ret, cost = float(seg["rewards"].sum()), float(seg["costs"].sum())
                 finished.append((ret, cost))
                 if cost <= s.cost_cap and ret >= s.reward_min:
+                    from r2pac_jax.io import writing
+
                     i = state["next_index"]
                     state["next_index"] += 1
-                    np.savez(self.dir / "episodes" / f"ep-{i:07d}.npz", **seg)
+                    f = self.dir / "episodes" / f"ep-{i:07d}.npz"
+                    with writing(f, "a pooled episode", "rerunning continues from the last "
+                                 "checkpoint"):
+                        np.savez(f, **seg)
                     kept.append((i, ret, cost, int(seg["rewards"].size)))
         return kept, finished
 

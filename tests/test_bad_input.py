@@ -1,0 +1,251 @@
+"""One table of bad inputs: each gives one line naming the problem and the fix, exit status 2, and
+loses nothing. Cases run in-process through the CLIs' `main(argv)`; later issues add rows.
+
+Columns: CLI, argv (with {d} = a tiny ReachAvoid dataset, {t} = this test's tmp dir, {f} = a
+plain file, {run} = a finished tiny run, {killed} = a run stopped before its end), expected
+exit code, a fragment of the message (stderr).
+"""
+import errno
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+TINY = ["--set", "steps=20", "--set", "batch_size=32", "--set", "hidden_dims=16,16",
+        "--set", "threshold_every=10", "--set", "checkpoint_every=10", "--set", "flow_steps=4",
+        "--set", "num_candidates=4", "--set", "threshold_subset=256", "--set",
+        "actor_hidden_dims=16,16", "--eval-episodes", "2", "--eval-every", "10", "--seeds", "2",
+        "--no-progress"]
+
+T = "--task ReachAvoid".split()
+CASES = [
+    # train: options
+    ("train", ["--task", "Nope"], 2, "unknown task 'Nope'"),
+    ("train", T + ["--algo", "cpq-x"], 2, "unknown algo 'cpq-x'; choose one of r2pac"),
+    ("train", T + ["--set", "quantile_alpha=2"], 2, "quantile_alpha must lie in (0, 1), got 2"),
+    ("train", T + ["--set", "lr=nan"], 2, "lr must be > 0, got nan"),
+    ("train", T + ["--set", "reward_scale=0"], 2, "reward_scale must be > 0"),
+    ("train", T + ["--set", "discount=1.5"], 2, "discount must lie in (0, 1), got 1.5"),
+    ("train", T + ["--set", "task=CarGoal2"], 2, "task is chosen with --task"),
+    ("train", T + ["--set", "algo=bc-all"], 2, "algo is chosen with --algo"),
+    ("train", T + ["--set", "seeds=4"], 2, "chosen with --seeds N"),
+    ("train", T + ["--set", "reward_penalty=false"], 2,
+     "reward_penalty is an algorithm switch; choose the variant with --algo (r2pac-no-penalty)"),
+    ("train", T + ["--set", "data_filter=safe"], 2, "--algo (bc-safe, bc-safe-mlp)"),
+    ("train", T + ["--set", "steps=ten"], 2, "--set steps='ten': expected an integer"),
+    ("train", T + ["--set", "alpha=0.5"], 2, "unknown config key 'alpha'"),
+    ("train", T + ["--set", "steps"], 2, "--set takes key=value"),
+    ("train", T + ["--resume"], 2, "--resume needs --out DIR"),
+    ("train", T + ["--chunk-len", "100"], 2, "chunk_len 100 is longer than an episode"),
+    ("train", T + ["--algo", "bc-all-mlp", "--chunk-len", "5"], 2,
+     "bc-all-mlp clones one action per step"),
+    ("train", T + ["--eval-episodes", "-1"], 2, "eval_episodes must be >= 0"),
+    # train: data
+    ("train", T + ["--dataset", "{t}/missing.hdf5"], 2, "no such file"),
+    ("train", T + ["--dataset", "{t}"], 2, "is a directory. Fix: pass the dataset's .hdf5"),
+    ("train", T + ["--dataset", "{f}"], 2, "cannot be read as HDF5"),
+    ("train", T + ["--dataset", "{unsafe}", "--out", "{t}/u"], 2,
+     "bc-safe: the dataset {unsafe} has no episode with cost <= kappa=2.0"),
+    # train: where it writes
+    ("train", T + ["--dataset", "{d}", "--out", "{f}"] + TINY, 2,
+     "is a file, not a directory"),
+    ("train", T + ["--dataset", "{d}", "--out", "{f}/sub"] + TINY, 2,
+     "a path component is a file, not a directory"),
+    ("train", T + ["--dataset", "{d}", "--out", "{run}", "--baselines", "none"] + TINY, 2,
+     "already holds a run"),
+    ("train", T + ["--dataset", "{d}", "--out", "{run}", "--baselines", "none", "--resume"]
+     + TINY + ["--set", "steps=40"], 2, "--resume: {run} was started with other settings "
+     "(steps: 20 -> 40)"),
+    # evaluate
+    ("evaluate", ["{t}/nothing"], 2, "no such run directory"),
+    ("evaluate", ["{t}"], 2, "holds no run (config.json and lanes.json"),
+    ("evaluate", ["{killed}"], 2, "holds no finished run"),
+    ("evaluate", ["{damaged}"], 2, "config.json or lanes.json is damaged"),
+    ("evaluate", ["{run}", "--episodes", "0"], 2, "--episodes must be >= 1"),
+    ("evaluate", ["{run}", "--selection", "first", "--guidance", "1"], 0, "seed 1:"),
+    # sweep
+    ("sweep", ["{sweep_not_hdf5}"], 2, "cannot be read as HDF5"),
+    ("sweep", ["{sweep_switch}"], 2, "reward_penalty is an algorithm switch"),
+    ("sweep", ["{t}/none.toml"], 2, "no such sweep file"),
+    # data
+    ("data", ["make", "--task", "CarGoal2", "--source", "ppo-lagrangian", "--budget", "0"], 2,
+     "--budget and --trajectories must be >= 1"),
+    ("data", ["make", "--task", "BallRun"], 2, "no data source for task 'BallRun'"),
+    ("data", ["check", "{f}"], 2, "does not say its task"),
+]
+
+
+def _main(cli):
+    import importlib
+
+    mod = {"train": "r2pac_jax.train", "evaluate": "r2pac_jax.evaluate",
+           "sweep": "r2pac_jax.sweep", "data": "r2pac_jax.data.__main__"}[cli]
+    return importlib.import_module(mod).main
+
+
+@pytest.fixture(scope="module")
+def places(tmp_path_factory, reach_avoid_data):
+    import numpy as np
+
+    from r2pac_jax.data.dsrl import write_dsrl
+    from r2pac_jax.train import main
+
+    t = tmp_path_factory.mktemp("bad")
+    d = t / "ra.hdf5"
+    write_dsrl(d, reach_avoid_data, attrs={"task": "ReachAvoid"})
+    arrays = reach_avoid_data.as_dict()
+    unsafe = t / "unsafe.hdf5"
+    write_dsrl(unsafe, dict(arrays, costs=np.ones_like(arrays["costs"])))
+    f = t / "plain.txt"
+    f.write_text("not a dataset\n")
+    run = t / "run"
+    assert main(T + ["--dataset", str(d), "--out", str(run), "--baselines", "none"] + TINY) == 0
+    killed = t / "killed"
+    (killed).mkdir()
+    for name in ("config.json", "lanes.json"):
+        (killed / name).write_text((run / name).read_text())
+    damaged = t / "damaged"
+    damaged.mkdir()
+    (damaged / "config.json").write_text("{\"algo\": ")
+    (damaged / "lanes.json").write_text("{}")
+    sweep_not_hdf5 = t / "s1.toml"
+    sweep_not_hdf5.write_text(f'task = "ReachAvoid"\ndataset = "{f}"\n[grid]\n'
+                              'quantile_alpha = [0.5, 0.9]\n')
+    sweep_switch = t / "s2.toml"
+    sweep_switch.write_text('task = "ReachAvoid"\n[config]\nreward_penalty = false\n')
+    return dict(t=t, d=d, f=f, run=run, killed=killed, damaged=damaged, unsafe=unsafe,
+                sweep_not_hdf5=sweep_not_hdf5, sweep_switch=sweep_switch)
+
+
+def _fill(s, places):
+    for k, v in places.items():
+        s = s.replace("{" + k + "}", str(v))
+    return s
+
+
+@pytest.mark.parametrize("cli,argv,code,fragment", CASES,
+                         ids=[f"{c[0]}:{' '.join(c[1])[:60]}" for c in CASES])
+def test_bad_input_gets_one_line_and_exit_2(cli, argv, code, fragment, places, capsys, data_dir):
+    before = {p: p.stat().st_mtime_ns for p in places["run"].rglob("*")
+              if p.is_file() and p.name != ".lock"}
+    rc = _main(cli)([_fill(a, places) for a in argv])
+    out = capsys.readouterr()
+    text = out.err if code else out.out
+    assert rc == code, (rc, out.err[-2000:])
+    assert _fill(fragment, places) in text
+    if code:
+        lines = [ln for ln in out.err.splitlines() if ln.strip()]
+        assert len(lines) == 1 and lines[0].startswith("error: "), out.err
+        assert "Traceback" not in out.err
+    after = {p: p.stat().st_mtime_ns for p in places["run"].rglob("*")
+             if p.is_file() and p.name != ".lock"}
+    if cli == "train":  # nothing of the finished run was touched
+        assert {p: m for p, m in after.items() if p in before} == before
+
+
+def test_safe_subset_checked_before_any_training(places, capsys, data_dir):
+    from r2pac_jax.train import main
+
+    out = places["t"] / "early"
+    assert main(T + ["--dataset", str(places["unsafe"]), "--out", str(out)] + TINY) == 2
+    assert not (out / "checkpoints").exists()  # r2pac did not start before bc-safe's check
+
+
+def test_disk_full_while_writing_results_keeps_the_checkpoints(places, capsys, monkeypatch,
+                                                              data_dir):
+    """ENOSPC injected where results.json is replaced into place."""
+    from r2pac_jax import io
+    from r2pac_jax.checkpoint import Checkpointer
+    from r2pac_jax.train import main
+
+    real = os.replace
+
+    def full(src, dst):
+        if str(dst).endswith("results.json"):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(src, dst)
+
+    monkeypatch.setattr(io.os, "replace", full)
+    out = places["t"] / "full"
+    rc = main(T + ["--dataset", str(places["d"]), "--out", str(out), "--baselines", "none"]
+              + TINY)
+    err = capsys.readouterr().err
+    assert rc == 2 and "no space left on the disk" in err and str(out / "results.json") in err
+    assert len(err.strip().splitlines()) == 1
+    assert Checkpointer(out / "checkpoints").latest_step() == 40  # every checkpoint is intact
+
+
+def test_disk_full_in_a_checkpoint_names_it(places, capsys, monkeypatch, data_dir):
+    import orbax.checkpoint as ocp
+
+    from r2pac_jax.train import main
+
+    real = ocp.CheckpointManager.save
+    calls = []
+
+    def save(self, step, *a, **kw):
+        calls.append(step)
+        if len(calls) == 2:  # the second checkpoint hits a full disk, as tensorstore words it
+            raise ValueError("RESOURCE_EXHAUSTED: Error writing local file: No space left on "
+                             "device [OS error 28]")
+        return real(self, step, *a, **kw)
+
+    monkeypatch.setattr(ocp.CheckpointManager, "save", save)
+    out = places["t"] / "ckfull"
+    rc = main(T + ["--dataset", str(places["d"]), "--out", str(out), "--baselines", "none"]
+              + TINY)
+    err = capsys.readouterr().err
+    assert rc == 2 and "cannot write the checkpoint" in err and "no space left" in err
+    assert "the last complete checkpoint, step 10, is kept" in err
+
+
+def test_file_size_limit_in_a_subprocess_keeps_the_checkpoints_and_resumes(places, data_dir):
+    """A real failing write: under RLIMIT_FSIZE = 128 KiB the growing metrics log fails (EFBIG)
+    in the actor phase; the error is one line, the checkpoints read back, and a resume without
+    the limit finishes the run."""
+    import resource
+
+    out = places["t"] / "fsize"
+    sets = ["--set", "steps=600", "--set", "batch_size=32", "--set", "hidden_dims=16,16",
+            "--set", "threshold_every=5", "--set", "checkpoint_every=50", "--set",
+            "flow_steps=4", "--set", "num_candidates=4", "--set", "threshold_subset=256",
+            "--set", "actor_hidden_dims=16,16", "--eval-episodes", "2", "--eval-every", "300",
+            "--seeds", "2", "--no-progress"]
+    cmd = [sys.executable, "-m", "r2pac_jax.train"] + T + [
+        "--dataset", str(places["d"]), "--out", str(out), "--baselines", "none"] + sets
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (128 * 1024, 128 * 1024))
+
+    env = dict(os.environ, R2PAC_NO_TENSORBOARD="1")
+    p = subprocess.run(cmd, capture_output=True, text=True, preexec_fn=limit, timeout=600,
+                       env=env)
+    assert p.returncode == 2, p.stderr[-3000:]
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert lines == [ln for ln in lines if ln.startswith("error: ")] and len(lines) == 1, lines
+    assert "cannot write the log" in lines[0] and "file-size limit" in lines[0]
+    from r2pac_jax.checkpoint import Checkpointer
+
+    step = Checkpointer(out / "checkpoints").latest_step()
+    assert step is not None and 600 < step < 1200  # it failed in the actor phase
+    assert not (out / "results.json").exists()
+    p = subprocess.run(cmd + ["--resume"], capture_output=True, text=True, timeout=600, env=env)
+    assert p.returncode == 0, p.stderr[-3000:]
+    res = json.loads((out / "results.json").read_text())
+    assert len(res["normalized_reward"]["per_seed"]) == 2
+
+
+def test_an_injected_bug_still_shows_its_traceback(places, monkeypatch, data_dir):
+    """A bug is never disguised as a user error: unexpected exceptions propagate (exit 1)."""
+    from r2pac_jax import loop
+    from r2pac_jax.train import main
+
+    def broken(self, *a, **kw):
+        raise KeyError("an injected bug")
+
+    monkeypatch.setattr(loop.Run, "_run", broken)
+    with pytest.raises(KeyError, match="an injected bug"):
+        main(T + ["--dataset", str(places["d"]), "--out", str(places["t"] / "bug"),
+                  "--baselines", "none"] + TINY)
