@@ -132,7 +132,13 @@ class Run:
 
     def __init__(self, cfg: Config, task: TaskSpec, ds: Dataset, out_dir, lanes: Lanes,
                  physics: str = "auto", progress: bool = True, log: Callable[[str], None] = print,
-                 dataset_label: str = ""):
+                 dataset_label: str = "", nonfinite: str = "stop"):
+        """nonfinite: "stop" (a block with a NaN/inf metric stops the run) or "mark" (sweeps:
+        the diverged lanes are recorded, reported without scores, and the others finish)."""
+        if nonfinite not in ("stop", "mark"):
+            raise ValueError(f"nonfinite must be 'stop' or 'mark', got {nonfinite!r}")
+        self.nonfinite = nonfinite
+        self.diverged: dict[int, dict] = {}  # lane -> {seed, step, terms}
         self.cfg, self.task, self.lanes = cfg, task, lanes
         self.out = Path(out_dir)
         self.physics = physics
@@ -163,10 +169,28 @@ class Run:
         return place(self._init(self.lanes.init_keys(), self.lanes.hp), self.lanes.size)
 
     def evaluate(self, state, step: int) -> dict:
+        """Every lane's evaluation; diverged lanes get NaN scores (their policies are not run:
+        a healthy lane's parameters stand in for them so that the batch keeps its shape)."""
         from r2pac_jax.evaluate import eval_keys
 
         pp = self._policy_params(state, self.lanes.hp)
-        return self.evaluator(pp, eval_keys(self.lanes.seeds, step))
+        bad = sorted(self.diverged)
+        good = [i for i in range(self.lanes.size) if i not in self.diverged]
+        if bad and good:
+            idx = np.array([good[0] if i in self.diverged else i for i in range(self.lanes.size)])
+            pp = jax.tree_util.tree_map(lambda x: x[idx], pp)
+        if bad and not good:
+            shape = (self.lanes.size, self.cfg.eval_episodes)
+            res = {k: np.full(shape, np.nan) for k in ("returns", "costs", "lengths")}
+            res.update(normalized_reward=np.full(shape[0], np.nan),
+                       normalized_cost=np.full(shape[0], np.nan))
+            return res
+        res = dict(self.evaluator(pp, eval_keys(self.lanes.seeds, step)))
+        if bad:
+            for k in res:
+                res[k] = np.array(res[k], dtype=float)
+                res[k][bad] = np.nan
+        return res
 
     # main loop ---------------------------------------------------------------------------------
     def run(self, resume: bool = False, stop_after: Optional[int] = None) -> Optional[dict]:
@@ -221,6 +245,7 @@ class Run:
                 state, meta = ckpt.restore(latest, state)
                 state = place(state, self.lanes.size)
                 done_blocks = int(meta["blocks_done"])
+                self.diverged = {int(k): v for k, v in meta.get("diverged", {}).items()}
                 resume_step = latest
                 self.log(f"resuming {self.out} from step {latest}")
         elif ckpt.latest_step() is not None:
@@ -277,7 +302,9 @@ class Run:
                             mean_cost=float(res["costs"][lane].mean())),
                             tb_prefix=f"eval/lane{lane}")
                 if last or step % cfg.checkpoint_every == 0:
-                    ckpt.save(step, state, {"blocks_done": i + 1, "step": step})
+                    ckpt.save(step, state, {"blocks_done": i + 1, "step": step,
+                                            "diverged": {str(k): v for k, v in
+                                                         self.diverged.items()}})
                 if bar is not None:
                     post = {"phase": phase}
                     if "threshold" in metrics:
@@ -305,8 +332,18 @@ class Run:
             ckpt.close()
 
     def _check_finite(self, metrics: dict, step: int, last_good: Optional[int]) -> None:
-        bad = {k: [int(x) for x in np.flatnonzero(~np.isfinite(v))] for k, v in metrics.items()}
+        bad = {k: [int(x) for x in np.flatnonzero(~np.isfinite(v)) if int(x) not in
+                   self.diverged] for k, v in metrics.items()}
         bad = {k: v for k, v in bad.items() if v}
+        if bad and self.nonfinite == "mark":
+            for lane in sorted({ln for v in bad.values() for ln in v}):
+                terms = sorted(k for k, v in bad.items() if lane in v)
+                self.diverged[lane] = dict(seed=self.lanes.seeds[lane], step=step, terms=terms)
+                self.log(f"lane {lane} (seed {self.lanes.seeds[lane]}, cell "
+                         f"{self.lanes.cell_hparams[self.lanes.cells[lane]]}) diverged in the "
+                         f"block ending at step {step} (non-finite {', '.join(terms)}); it is "
+                         "marked and the other lanes go on")
+            return
         if bad:
             lanes = sorted({lane for v in bad.values() for lane in v})
             seeds = [self.lanes.seeds[i] for i in lanes]
@@ -331,7 +368,7 @@ class Run:
         from r2pac_jax.results import run_results
 
         return run_results(self.cfg, self.task.name, self.lanes, self.agent.summary(state), ev,
-                           wall, steps, self.dataset_label, self.physics)
+                           wall, steps, self.dataset_label, self.physics, self.diverged)
 
     def plot(self, logs) -> None:
         from r2pac_jax.report import plot_run

@@ -123,3 +123,47 @@ def plot_run(logs, out_dir, title: str, metric_keys: Sequence[str]) -> None:
     if ev:
         plot_curves(ev, ["normalized_reward", "normalized_cost"], out_dir / "eval.png",
                     f"{title}: evaluation")
+
+
+# What the project's own experiments found about a task's defaults, printed under the main
+# job's table so that one table is not read as the verdict (a pointer, not a result of the run).
+TASK_CONTEXT = {
+    "ReachAvoid": (
+        "the alpha x h grid on this data found h 7 / alpha 0.99 better for r2pac (0.83 reward, "
+        "cost 0.07 on fresh seeds: experiments/reach_avoid/RESULTS.md, sections 6-7), a setting "
+        "that did not transfer to the PPO-Lagrangian data (-0.12: experiments/data_factory/"
+        "QUALITY_BAR.md); the registry's defaults are kept"),
+}
+
+
+def setting_line(cfg, task) -> str:
+    """Which setting produced a run: the algorithm's task values against the registry's."""
+    parts = [f"{cfg.algo}", f"{cfg.preset} preset", f"{cfg.seeds} seeds",
+             f"{cfg.eval_episodes} evaluation episodes each"]
+    named = []
+    for key, reg in (("chunk_len", task.chunk_len), ("quantile_alpha", task.quantile_alpha),
+                     ("penalty_c", task.penalty_c)):
+        try:
+            val = getattr(cfg, key)
+        except AttributeError:
+            continue
+        if key == "chunk_len" and cfg.algo.endswith("-mlp"):
+            continue
+        named.append(f"{key}={val:g}" + ("" if val == reg else f" (registry: {reg:g})"))
+    head = parts.pop(0)
+    if named:
+        differs = any("registry" in n for n in named)
+        head += (" with non-default values (" if differs else " at the registry's defaults (") \
+            + ", ".join(named) + ")"
+    return "Setting: " + ", ".join([head] + parts) + "."
+
+
+def verdict_line(results: dict) -> str:
+    """Which agents were safe and which safe agent had the best reward, from the results."""
+    safe = {a: r["normalized_reward"]["mean"] for a, r in results.items()
+            if r["normalized_cost"]["mean"] < SAFE_LIMIT}
+    if not safe:
+        return "No agent was safe (normalised cost < 1) on this data."
+    best = max(safe, key=safe.get)
+    return (f"Safe (normalised cost < 1): {', '.join(safe)}; the best safe reward: {best} "
+            f"{safe[best]:.2f}.")

@@ -11,12 +11,25 @@ from r2pac_jax.lanes import Lanes
 
 
 def _stats(per_seed: np.ndarray) -> dict:
-    return dict(mean=float(np.mean(per_seed)), std=float(np.std(per_seed)),
-                per_seed=[float(x) for x in per_seed])
+    """Mean and std over the seeds with finite values (diverged lanes are NaN: null in JSON)."""
+    x = np.asarray(per_seed, float)
+    ok = np.isfinite(x)
+    return dict(mean=float(x[ok].mean()) if ok.any() else None,
+                std=float(x[ok].std()) if ok.any() else None,
+                per_seed=[float(v) if np.isfinite(v) else None for v in x])
+
+
+def _nan_to_none(a) -> list:
+    """Nested lists with null where a diverged lane has no value (NaN is not JSON)."""
+    a = np.asarray(a)
+    if not np.issubdtype(a.dtype, np.floating) or np.isfinite(a).all():
+        return a.tolist()
+    return [[float(v) if np.isfinite(v) else None for v in row] for row in a]
 
 
 def run_results(cfg: Config, task_name: str, lanes: Lanes, summary: dict, ev: Optional[dict],
-                wall: float, steps: int, dataset: str, physics: str) -> dict:
+                wall: float, steps: int, dataset: str, physics: str,
+                diverged: Optional[dict] = None) -> dict:
     """summary: the agent's per-lane scalars ({name: [L]}); ev: LaneEvaluator's output or None.
 
     One entry per cell in `cells`; with a single cell its entries also sit at the top level."""
@@ -29,16 +42,19 @@ def run_results(cfg: Config, task_name: str, lanes: Lanes, summary: dict, ev: Op
         idx = [i for i, ci in enumerate(lanes.cells) if ci == c]
         cell = dict(hparams=hp, seeds=[lanes.seeds[i] for i in idx])
         cell.update({k: [float(v[i]) for i in idx] for k, v in summary.items()})
+        if diverged:
+            cell["diverged"] = [dict(diverged[i], lane=i) for i in idx if i in diverged]
         if ev is not None:
             cell.update(
                 normalized_reward=_stats(ev["normalized_reward"][idx]),
                 normalized_cost=_stats(ev["normalized_cost"][idx]),
-                returns=ev["returns"][idx].tolist(), costs=ev["costs"][idx].tolist(),
-                lengths=ev["lengths"][idx].tolist(),
+                returns=_nan_to_none(ev["returns"][idx]), costs=_nan_to_none(ev["costs"][idx]),
+                lengths=_nan_to_none(ev["lengths"][idx]),
                 mean_return=_stats(ev["returns"][idx].mean(-1)),
                 mean_cost=_stats(ev["costs"][idx].mean(-1)),
                 episodes=int(ev["returns"].shape[-1]))
-            cell["safe"] = bool(cell["normalized_cost"]["mean"] < 1.0)
+            mean_cost = cell["normalized_cost"]["mean"]
+            cell["safe"] = mean_cost is not None and bool(mean_cost < 1.0)
         out["cells"].append(cell)
     if len(out["cells"]) == 1:
         out.update({k: v for k, v in out["cells"][0].items() if k != "hparams"})

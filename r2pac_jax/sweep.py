@@ -261,7 +261,7 @@ def run_group(sweep: Sweep, group: Group, out: Path, log=print, progress: bool =
     ds = load_task_dataset(task, sweep.dataset, announce=log)
     gdir = out / "groups" / group.group_id
     run = Run(cfg, task, ds, gdir, lanes, physics=sweep.physics, progress=progress, log=log,
-              dataset_label=ds.source)
+              dataset_label=ds.source, nonfinite="mark")
     res = run.run(resume=True)
     for c, cell_res in zip(group.cells, res["cells"]):
         record = dict(cell_id=c.cell_id, label=c.label, task=c.task, algo=c.algo,
@@ -333,11 +333,14 @@ def _rows(out: Path) -> list[dict]:
         if "normalized_reward" not in rec:
             continue
         row = dict(cell_id=rec["cell_id"], task=rec["task"], algo=rec["algo"], **rec["axes"])
+        nan = float("nan")
         for key in ("normalized_reward", "normalized_cost"):
-            row[f"{key}_mean"] = rec[key]["mean"]
-            row[f"{key}_std"] = rec[key]["std"]
-            row[f"{key}_per_seed"] = " ".join(f"{x:.3f}" for x in rec[key]["per_seed"])
-        row["safe"] = rec["normalized_cost"]["mean"] < 1.0
+            row[f"{key}_mean"] = nan if rec[key]["mean"] is None else rec[key]["mean"]
+            row[f"{key}_std"] = nan if rec[key]["std"] is None else rec[key]["std"]
+            row[f"{key}_per_seed"] = " ".join("diverged" if x is None else f"{x:.3f}"
+                                              for x in rec[key]["per_seed"])
+        row["safe"] = bool(rec.get("safe", row["normalized_cost_mean"] < 1.0))
+        row["diverged_seeds"] = " ".join(str(d["seed"]) for d in rec.get("diverged", []))
         row["run_dir"] = rec["run_dir"]
         rows.append(row)
     return rows
@@ -352,7 +355,7 @@ def write_report(out: Path) -> Optional[str]:
     if not rows:
         return None
     axes = sorted({k for r in rows for k in r} - {
-        "cell_id", "task", "algo", "safe", "run_dir", "normalized_reward_mean",
+        "cell_id", "task", "algo", "safe", "run_dir", "diverged_seeds", "normalized_reward_mean",
         "normalized_reward_std", "normalized_reward_per_seed", "normalized_cost_mean",
         "normalized_cost_std", "normalized_cost_per_seed"})
     cols = (["task", "algo"] + axes + ["normalized_reward_mean", "normalized_reward_std",
@@ -386,11 +389,14 @@ def markdown_table(rows: list[dict], axes: list[str]) -> str:
             rew, cost = f"**{rew}**", f"**{cost}**"
             if best.get(r["task"], (None, None))[1] == r["cell_id"]:
                 rew += " ★"
+        if r.get("diverged_seeds"):
+            rew += f" (diverged: seeds {r['diverged_seeds']})"
         vals = " | ".join(str(r.get(a, "")) for a in axes)
         lines.append(f"| {r['task']} | {r['algo']} | {vals} | {rew} | {cost} | "
                      f"{r['normalized_reward_per_seed']} | {r['normalized_cost_per_seed']} |")
     lines += ["", "Normalised scores, mean ± std over seeds. **Bold**: safe (normalised cost < 1); "
-              "★: the best safe reward of the task."]
+              "★: the best safe reward of the task. A diverged seed (NaN or inf in training) has "
+              "no score; the means are over the others."]
     return "\n".join(lines)
 
 

@@ -201,11 +201,19 @@ def main(argv=None) -> int:
             DirectoryBusy, TrainingDiverged, WriteError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    from r2pac_jax.report import results_table
+    from r2pac_jax.report import TASK_CONTEXT, results_table, setting_line, verdict_line
 
     if all("normalized_reward" in r for r in results.values()):
         table = results_table({task.name: results})
-        atomic_write_text(out / "table.md", table + "\n")
+        notes = [setting_line(cfgs[args.algo], task), verdict_line(results)]
+        if task.name in TASK_CONTEXT:
+            notes.append(f"Context: {TASK_CONTEXT[task.name]}.")
+        table += "\n\n" + "\n".join(notes)
+        try:
+            atomic_write_text(out / "table.md", table + "\n")
+        except WriteError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
         log("\n" + table)
     log(f"\nresults: {out / 'results.json'}; metrics: {out / 'metrics.jsonl'}; "
         f"policy: r2pac_jax.load_policy({str(out)!r})")

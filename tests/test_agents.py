@@ -230,3 +230,25 @@ def test_configs_of_runs_made_before_the_protocol_still_load(algo):
     over = dict(seeds=2) if algo == "bc-safe" else dict(seeds=2, quantile_alpha=0.8)
     assert cfg == make_config("CarGoal2", algo, "quick", over)
     assert Config.from_dict(json.loads(cfg.to_json())) == cfg  # and the new layout round-trips
+
+
+def test_a_sweep_marks_a_diverged_lane_and_the_others_finish(task, reach_avoid_data, tmp_path):
+    """In mark mode (sweeps) one cell's lanes diverge (penalty C huge -> inf targets) while the
+    other cell's finish and are scored; the report names the diverged seeds."""
+    cfg = tiny_config("r2pac", steps=20, eval_episodes=2, schedule="joint")
+    lanes = Lanes.build(cfg, [0, 1], [dict(penalty_c=1.0), dict(penalty_c=3e38)])
+    msgs = []
+    run = Run(cfg, task, reach_avoid_data, tmp_path / "g", lanes, progress=False,
+              log=msgs.append, nonfinite="mark")
+    res = run.run()
+    ok, bad = res["cells"]
+    assert "diverged" not in ok or not ok["diverged"]
+    assert all(x is not None for x in ok["normalized_reward"]["per_seed"])
+    assert [d["seed"] for d in bad["diverged"]] == [0, 1]
+    assert bad["normalized_reward"]["mean"] is None and bad["safe"] is False
+    assert bad["normalized_cost"]["per_seed"] == [None, None]
+    assert any("diverged in the block ending at step" in m for m in msgs)
+    # the same lanes in stop mode (train): the run stops instead
+    with pytest.raises(TrainingDiverged):
+        Run(cfg, task, reach_avoid_data, tmp_path / "s", lanes, progress=False,
+            log=lambda m: None).run()

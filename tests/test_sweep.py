@@ -189,3 +189,28 @@ def test_sweep_on_a_mujoco_task_via_task_override(tmp_path, data_dir):
         assert all(0 < n <= 1000 for n in c["lengths"][0])
         assert c["safe"] == (c["normalized_cost"]["mean"] < 1.0)
     assert (out / "table.md").read_text().count("| HopperVelocity | r2pac |") == 4
+
+
+def test_report_marks_diverged_seeds(tmp_path):
+    from r2pac_jax.io import atomic_write_json
+
+    def cell(cid, alpha, per_r, per_c, diverged=()):
+        def stats(xs):
+            ok = [x for x in xs if x is not None]
+            return dict(mean=sum(ok) / len(ok) if ok else None, std=0.0 if ok else None,
+                        per_seed=xs)
+        return dict(cell_id=cid, label=cid, task="ReachAvoid", algo="r2pac",
+                    axes=dict(quantile_alpha=alpha), run_dir=str(tmp_path / "g"),
+                    normalized_reward=stats(per_r), normalized_cost=stats(per_c),
+                    safe=bool(stats(per_c)["mean"] is not None and stats(per_c)["mean"] < 1),
+                    diverged=[dict(seed=s, step=10, terms=["loss_qr"]) for s in diverged])
+
+    atomic_write_json(tmp_path / "cells" / "a.json", cell("a", 0.5, [0.4, 0.6], [0.1, 0.2]))
+    atomic_write_json(tmp_path / "cells" / "b.json", cell("b", 0.9, [0.8, None], [0.5, None],
+                                                        diverged=[1]))
+    atomic_write_json(tmp_path / "cells" / "c.json", cell("c", 0.95, [None, None], [None, None],
+                                                        diverged=[0, 1]))
+    md = sw.write_report(tmp_path)
+    assert "(diverged: seeds 1)" in md and "(diverged: seeds 0 1)" in md
+    assert "0.800 diverged" in md and "nan ± nan" in md
+    assert "**0.80 ± 0.00** ★ (diverged: seeds 1)" in md  # best safe among the finite seeds

@@ -126,6 +126,12 @@ def test_cli_end_to_end_and_load_policy(data_dir, tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "generating" in printed and "| ReachAvoid |" in printed and "bc-safe reward" in printed
     assert "bc-safe-mlp reward" in printed
+    # under the table: the setting, which agents were safe, and the experiments' context
+    assert "Setting: r2pac at the registry's defaults (chunk_len=5, quantile_alpha=0.9, " \
+        "penalty_c=1), quick preset, 2 seeds, 3 evaluation episodes each." in printed
+    assert ("Safe (normalised cost < 1): " in printed) != ("No agent was safe" in printed)
+    assert "Context: the alpha x h grid on this data found h 7 / alpha 0.99" in printed
+    assert "Setting: r2pac" in (out / "table.md").read_text()
     # the one-step cloner drops the chunked agents' keys with a note instead of failing
     assert "note: baseline bc-safe-mlp does not use flow_steps=4; ignored for it" in printed
     mlp = json.loads((out / "baselines" / "bc-safe-mlp" / "config.json").read_text())
