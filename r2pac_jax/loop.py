@@ -223,6 +223,8 @@ class Run:
         for k in ("seeds", "cell_hparams"):
             if old_lanes.get(k) != getattr(self.lanes, k):
                 diff.append(f"{k}: {old_lanes.get(k)} -> {getattr(self.lanes, k)}")
+        if old_lanes.get("physics", self.physics) != self.physics:  # evaluation's backend
+            diff.append(f"physics: {old_lanes['physics']!r} -> {self.physics!r}")
         if diff:
             raise ConfigError(f"--resume: {self.out} was started with other settings ("
                               f"{'; '.join(diff)}); resume it with the options it was started "
