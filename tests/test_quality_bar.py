@@ -93,3 +93,16 @@ def test_details_lists_per_seed_values_and_cost_free_episodes(qb, tmp_path):
     rows = qb.details(tmp_path, "PointGoal1").splitlines()
     assert len(rows) == 3  # header, separator, r2pac only (no baseline has finished)
     assert rows[2] == "| r2pac | 0.20 ± 0.10 | 1.50 ± 1.00 | 0.10 0.30 | 0.50 2.50 | 50% | 61 |"
+
+
+def test_v2_report_has_the_mlp_cloners_and_a_second_verdict(qb, tmp_path):
+    (tmp_path / "data.json").write_text(json.dumps({"data": "v2"}))
+    for algo, r, c in [("r2pac", 0.4, 0.1), ("bc-all", 0.6, 3.0), ("bc-safe", 0.3, 0.5),
+                       ("bc-all-mlp", 0.5, 2.0), ("bc-safe-mlp", 0.45, 0.6)]:
+        d = tmp_path / "CarGoal1" / algo
+        d.mkdir(parents=True)
+        (d / "results.json").write_text(json.dumps(_res(r, c)))
+    text = qb.report(tmp_path)
+    assert "bc-safe-mlp reward" in text and "bc-all-mlp reward" in text
+    assert "| CarGoal1 | pass | fail: r2pac reward <= bc-safe-mlp |" in text
+    assert qb.learned_file("BallRun") is None

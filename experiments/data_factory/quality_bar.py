@@ -2,8 +2,14 @@
 (quick preset) should be safe and ahead of BC-safe, averaged over 3 seeds.
 
     python experiments/data_factory/quality_bar.py [--tasks CarGoal2,SwimmerVelocity,...]
-        [--out runs/quality_bar] [--seeds 3] [--eval-every 20000] [--physics auto|mujoco|mjx]
-        [--report-only] [--details] [--archive experiments/data_factory/results]
+        [--data v1|v2] [--out runs/quality_bar] [--seeds 3] [--eval-every 20000]
+        [--physics auto|mujoco|mjx] [--report-only] [--details]
+        [--archive experiments/data_factory/results]
+
+`--data v1` (default): the cache's scripted files, agents r2pac, bc-all, bc-safe (the bar as it
+ran on the scripted v1 data). `--data v2`: each task's learned-behaviour file at DSRL's size
+(`python -m r2pac_jax.data make --task T --source ppo-lagrangian`; a task without one is
+skipped with a note), passed with --dataset, and the two one-step MLP cloners as well.
 
 Each (task, algo) is one `python -m r2pac_jax.train` run in OUT/TASK/ALGO; a finished run
 (results.json present) is skipped, an interrupted one resumes from its checkpoint, so the
@@ -25,7 +31,21 @@ import subprocess
 import sys
 from pathlib import Path
 
-ALGOS = ("r2pac", "bc-all", "bc-safe")
+ALGOS_V1 = ("r2pac", "bc-all", "bc-safe")
+ALGOS_V2 = ALGOS_V1 + ("bc-all-mlp", "bc-safe-mlp")
+ALGOS = ALGOS_V1  # the columns of a report when the runs do not say otherwise
+
+
+def learned_file(task: str):
+    """The task's learned-behaviour (v2) file at DSRL's size, or None."""
+    from r2pac_jax.data import factory
+    from r2pac_jax.tasks import get_task
+
+    t = get_task(task)
+    if t.collection is None:
+        return None
+    p = factory.dataset_path(t, 0, t.collection.trajectories, "ppo-lagrangian")
+    return p if p.exists() and factory.card_path(p).exists() else None
 
 
 def default_tasks() -> list[str]:
@@ -36,7 +56,7 @@ def default_tasks() -> list[str]:
 
 
 def run_one(task: str, algo: str, out: Path, seeds: int, eval_every: int,
-            physics: str = "auto") -> None:
+            physics: str = "auto", dataset=None) -> None:
     from r2pac_jax.tasks import get_task
 
     run_dir = out / task / algo
@@ -48,22 +68,32 @@ def run_one(task: str, algo: str, out: Path, seeds: int, eval_every: int,
            "--preset", "quick", "--seeds", str(seeds), "--baselines", "none",
            "--eval-every", str(eval_every), "--physics", physics, "--out", str(run_dir),
            "--no-progress"]
+    if dataset is not None:
+        cmd += ["--dataset", str(dataset)]
     if (run_dir / "checkpoints").is_dir():
         cmd.append("--resume")
     print(" ".join(cmd), flush=True)
     subprocess.run(cmd, check=True)
 
 
-def verdict(row: dict) -> str:
-    """'pass' when r2pac is safe and its reward is above bc-safe's, else what failed."""
-    if not all(a in row for a in ("r2pac", "bc-safe")):
+def _algos(out: Path) -> tuple:
+    """The agents of a results folder: v2 folders (marked by data.json) have the MLP cloners."""
+    marker = out / "data.json"
+    if marker.exists() and json.loads(marker.read_text()).get("data") == "v2":
+        return ALGOS_V2
+    return ALGOS_V1
+
+
+def verdict(row: dict, against: str = "bc-safe") -> str:
+    """'pass' when r2pac is safe and its reward is above `against`'s, else what failed."""
+    if not all(a in row for a in ("r2pac", against)):
         return "incomplete"
-    r, b = row["r2pac"], row["bc-safe"]
+    r, b = row["r2pac"], row[against]
     problems = []
     if r["normalized_cost"]["mean"] >= 1.0:
         problems.append("r2pac unsafe")
     if r["normalized_reward"]["mean"] <= b["normalized_reward"]["mean"]:
-        problems.append("r2pac reward <= bc-safe")
+        problems.append(f"r2pac reward <= {against}")
     return "pass" if not problems else "fail: " + ", ".join(problems)
 
 
@@ -85,7 +115,8 @@ def archive(out: Path, task: str, dest: Path) -> list[Path]:
             shutil.copyfile(src, tmp)
         return target
 
-    files = {algo: _result_file(out, task, algo) for algo in ALGOS}
+    algos = _algos(out)
+    files = {algo: _result_file(out, task, algo) for algo in algos}
     if any(f is None for f in files.values()):
         return []
     written = []
@@ -107,7 +138,7 @@ def details(out: Path, task: str) -> str:
 
     lines = ["| algo | reward | cost | per-seed reward | per-seed cost | episodes with cost 0 "
              "| wall s |", "|---|---|---|---|---|---|---|"]
-    for algo in ALGOS:
+    for algo in _algos(out):
         f = _result_file(out, task, algo)
         if f is None:
             continue
@@ -131,9 +162,10 @@ def report(out: Path) -> str:
 
     on_disk = {p.name for p in out.iterdir() if p.is_dir()} if out.is_dir() else set()
     cells: dict[str, dict] = {}
+    algos = _algos(out)
     for task in [t for t in TASKS if t in on_disk] + sorted(on_disk - set(TASKS)):
         row = {}
-        for algo in ALGOS:
+        for algo in algos:
             f = _result_file(out, task, algo)
             if f is not None:
                 row[algo] = json.loads(f.read_text())
@@ -141,8 +173,14 @@ def report(out: Path) -> str:
             cells[task] = row
     if not cells:
         return "no finished run yet"
-    lines = [results_table(cells, list(ALGOS)), "", "| Task | verdict |", "|---|---|"]
-    lines += [f"| {t} | {verdict(r)} |" for t, r in cells.items()]
+    lines = [results_table(cells, list(algos)), ""]
+    if "bc-safe-mlp" in algos:
+        lines += ["| Task | verdict | r2pac against bc-safe-mlp (reported) |", "|---|---|---|"]
+        lines += [f"| {t} | {verdict(r)} | {verdict(r, 'bc-safe-mlp')} |"
+                  for t, r in cells.items()]
+    else:
+        lines += ["| Task | verdict |", "|---|---|"]
+        lines += [f"| {t} | {verdict(r)} |" for t, r in cells.items()]
     text = "\n".join(lines) + "\n"
     atomic_write_text(out / "quality_bar.md", text)
     return text
@@ -152,7 +190,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--tasks", default=None, help="comma-separated (default: every task with "
                                                   "an environment and a data source)")
-    ap.add_argument("--out", default="runs/quality_bar")
+    ap.add_argument("--data", default="v1", choices=["v1", "v2"],
+                    help="v1: the cache's scripted files (r2pac, bc-all, bc-safe); v2: the "
+                         "learned files at DSRL's size (and the MLP cloners)")
+    ap.add_argument("--out", default=None,
+                    help="default runs/quality_bar (v1) or runs/quality_bar_v2")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--eval-every", type=int, default=20_000,
                     help="evaluate at the end of the quick preset's 20k policy steps only")
@@ -167,13 +209,29 @@ def main() -> int:
                          "DIR/TASK/ (e.g. experiments/data_factory/results)")
     args = ap.parse_args()
     tasks = args.tasks.split(",") if args.tasks else default_tasks()
-    out = Path(args.out)
+    out = Path(args.out or ("runs/quality_bar" if args.data == "v1" else "runs/quality_bar_v2"))
+    if args.data == "v2":
+        from r2pac_jax.io import atomic_write_json
+
+        atomic_write_json(out / "data.json", {"data": "v2"})
     if not args.report_only:
         for task in tasks:
-            for algo in ALGOS:
-                run_one(task, algo, out, args.seeds, args.eval_every, args.physics)
+            dataset = None
+            if args.data == "v2":
+                dataset = learned_file(task)
+                if dataset is None:
+                    print(f"note: {task} has no learned (v2) file at DSRL's size yet; skipped "
+                          f"(python -m r2pac_jax.data make --task {task} --source "
+                          "ppo-lagrangian)", flush=True)
+                    continue
+            for algo in _algos(out):
+                run_one(task, algo, out, args.seeds, args.eval_every, args.physics, dataset)
             print(report(out), flush=True)
     if args.archive:
+        if args.data == "v2":
+            from r2pac_jax.io import atomic_write_json
+
+            atomic_write_json(Path(args.archive) / "data.json", {"data": "v2"})
         for task in tasks:
             for f in archive(out, task, Path(args.archive)):
                 print(f"archived {f}")
