@@ -201,17 +201,21 @@ def main(argv=None) -> int:
     ap.add_argument("--episodes", type=int, default=20)
     ap.add_argument("--out", default="runs/osrl_bc")
     ap.add_argument("--only", choices=["speed", "scores"], default=None)
+    ap.add_argument("--dataset", default=None,
+                    help="a DSRL-format file (default: the task's scripted v1 file, generated "
+                         "if missing: the file of the recorded figures)")
     args = ap.parse_args(argv)
     args.osrl_python = str(Path(args.osrl_venv) / "bin" / "python")
     if not Path(args.osrl_python).exists():
         print(f"error: no OSRL virtualenv at {args.osrl_venv}; make it with "
               f"bash benchmarks/peers/install_osrl.sh {args.osrl_venv}", file=sys.stderr)
         return 2
-    from r2pac_jax.data import load_task_dataset
+    from r2pac_jax.data import factory, load_task_dataset
     from r2pac_jax.tasks import get_task
 
     task = get_task(args.task)
-    ds = load_task_dataset(task, announce=print)
+    dataset = args.dataset or factory.find_cached(task) or factory.generate_dataset(task)
+    ds = load_task_dataset(task, str(dataset), announce=print)
     file = ds.source
     out = Path(args.out) / task.name
     out.mkdir(parents=True, exist_ok=True)

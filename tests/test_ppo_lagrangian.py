@@ -235,3 +235,32 @@ def test_train_prefers_learned_data_and_warns_on_scripted(tmp_path, monkeypatch)
     said.clear()
     assert load_task_dataset(task, announce=said.append).source == str(learned)
     assert not any("warning" in m for m in said)
+
+
+def test_a_fresh_machine_makes_learned_data_with_its_eta(tmp_path, monkeypatch):
+    """No data at all for a MuJoCo task: train's loader starts the learned generation (here at a
+    tiny registered budget), says how long DSRL's size takes and how to resume, then runs the
+    fast checks on the file."""
+    import dataclasses
+
+    from r2pac_jax import tasks
+    from r2pac_jax.data import load_task_dataset
+    from r2pac_jax.data.checks import checks_path
+
+    monkeypatch.setenv("R2PAC_DATA_DIR", str(tmp_path))
+    monkeypatch.setenv("DSRL_DATASET_DIR", str(tmp_path / "none"))
+    hop = get_task("HopperVelocity")
+    tiny = dataclasses.replace(hop.collection, epochs=2, epoch_start=0, epoch_end=1,
+                               steps_per_epoch=400, trajectories=8,
+                               ppo=(("num_envs", 4), ("rollout_len", 100), ("hidden", (16,)),
+                                    ("minibatches", 2), ("epochs", 1)))
+    monkeypatch.setitem(tasks.TASKS, "HopperVelocity", dataclasses.replace(hop, collection=tiny))
+    task = get_task("HopperVelocity")
+    said = []
+    ds = load_task_dataset(task, announce=said.append)
+    assert "generating DSRL's learned-behaviour data (8 trajectories from 800 env steps" in said[0]
+    assert "rerun the same command to continue" in said[0] and "--source ppo-lagrangian" in said[0]
+    assert ds.source.endswith("HopperVelocity-generated-ppolag-v2-s0-n8.hdf5")
+    assert checks_path(ds.source).exists() and "coverage checks" in said[-1]
+    said.clear()
+    assert load_task_dataset(task, announce=said.append).source == ds.source  # found next time

@@ -217,6 +217,12 @@ def main() -> int:
     if not args.report_only:
         for task in tasks:
             dataset = None
+            if args.data == "v1":  # the scripted file (train's own default is v2 now)
+                from r2pac_jax.data import factory
+                from r2pac_jax.tasks import get_task
+
+                dataset = factory.find_cached(get_task(task)) or factory.generate_dataset(
+                    get_task(task))
             if args.data == "v2":
                 dataset = learned_file(task)
                 if dataset is None:

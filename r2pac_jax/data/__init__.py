@@ -11,11 +11,39 @@ __all__ = ["Dataset", "DatasetError", "find_dsrl_file", "load_dsrl", "write_dsrl
            "load_task_dataset"]
 
 
+def _generate_learned(task: TaskSpec, announce: Callable[[str], None]) -> Dataset:
+    """No data for a MuJoCo task: make DSRL's learned-behaviour data at DSRL's size (hours on a
+    CPU, resumable: the same command continues it), then its fast checks."""
+    from r2pac_jax.data import factory
+    from r2pac_jax.data.checks import check_file
+    from r2pac_jax.data.factory.collect import estimate_hours
+
+    c = task.collection
+    hours = estimate_hours(task)
+    eta = f"about {hours:.1f} h on a 2-core CPU" if hours else "hours on a CPU"
+    announce(f"dataset: none found for {task.name}; generating DSRL's learned-behaviour data "
+             f"({c.trajectories} trajectories from {c.env_steps:,} env steps of an "
+             f"observation-based PPO-Lagrangian agent; {eta}) into {factory.cache_dir()}. It is "
+             "checkpointed: interrupt it and rerun the same command to continue. The same "
+             f"separately: python -m r2pac_jax.data make --task {task.name} --source "
+             "ppo-lagrangian (--budget N for a smaller, recorded budget)")
+    path = factory.generate_dataset(task, c.trajectories, seed=0, source="ppo-lagrangian",
+                                    progress=True, log=announce)
+    res = check_file(path, task.name, fast=True, log=announce)
+    announce(f"dataset: {path} (generated); coverage checks "
+             f"{'passed' if res['passed'] else 'failed: ' + ', '.join(res['failed'])} "
+             f"({path}.checks.json); the imitability checks: python -m r2pac_jax.data check "
+             f"{path}")
+    kw = dict(obs_dim=task.obs_dim, act_dim=task.act_dim, task_name=task.name)
+    return load_dsrl(path, **kw)
+
+
 def load_task_dataset(task: TaskSpec, dataset: Optional[str] = None,
                       announce: Callable[[str], None] = print) -> Dataset:
     """The training data, in order: `dataset`; a DSRL file on disk; a cached learned-behaviour
-    dataset (data v2); a cached scripted one (with a warning on the MuJoCo tasks); else a freshly
-    generated scripted one (announced)."""
+    dataset (data v2); a cached scripted one (with a warning on the MuJoCo tasks); else a
+    freshly generated one (announced): learned behaviour at DSRL's size for the MuJoCo tasks
+    (hours, resumable), the scripted demonstration data for ReachAvoid (seconds)."""
     from r2pac_jax.data import factory
 
     kw = dict(obs_dim=task.obs_dim, act_dim=task.act_dim, task_name=task.name)
@@ -39,6 +67,8 @@ def load_task_dataset(task: TaskSpec, dataset: Optional[str] = None,
                      "QUALITY_BAR.md); the learned data: python -m r2pac_jax.data make --task "
                      f"{task.name} --source ppo-lagrangian")
         return load_dsrl(path, **kw)
+    if task.collection is not None and task.family != "demo":
+        return _generate_learned(task, announce)
     if not factory.has_source(task):
         raise DatasetError(
             f"no dataset for task {task.name}: no --dataset given, no DSRL file "

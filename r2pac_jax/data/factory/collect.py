@@ -41,6 +41,24 @@ from r2pac_jax.data.factory.thinning import thin_by_density
 from r2pac_jax.tasks import TaskSpec
 
 DATA_VERSION = 2  # 1: the scripted controllers; 2: learned behaviour (this module)
+
+# Generation speed measured on the 2-core development CPU (env steps/s, 100 envs x 100 steps,
+# policy at initialisation; experiments/data_factory/GENERATION.md): for the ETA printed
+# before a generation starts. The progress bar measures the real rate as it goes.
+CPU2_STEPS_PER_S = {
+    "CarGoal1": 6593, "CarGoal2": 2159, "CarButton1": 4788, "CarButton2": 4684,
+    "CarPush1": 4672, "CarPush2": 4056, "PointGoal1": 10563, "PointGoal2": 2002,
+    "PointButton1": 7041, "PointButton2": 5663, "PointPush1": 4784, "PointPush2": 4958,
+    "AntVelocity": 5331, "HalfCheetahVelocity": 18362, "HopperVelocity": 6756,
+    "SwimmerVelocity": 18138, "Walker2dVelocity": 5089}
+
+
+def estimate_hours(task: TaskSpec, env_steps: Optional[int] = None) -> Optional[float]:
+    """Hours of generation on a 2-core CPU at the measured rate, or None if not measured."""
+    rate = CPU2_STEPS_PER_S.get(task.name)
+    if rate is None or task.collection is None:
+        return None
+    return (env_steps or task.collection.env_steps) / rate / 3600.0
 POOL_FACTOR = 1.5  # DSRL's TrajectoryBuffer filter_interval
 
 
