@@ -174,6 +174,12 @@ def test_not_enough_disk_is_refused_with_the_size(tmp_path, monkeypatch):
                                            r"needs about [0-9.]+ GiB"):
         collect.check_disk(get_task("CarGoal2"), collect.make_spec(get_task("CarGoal2")),
                            tmp_path)
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10, 0, 10 * 2**40))
+    monkeypatch.setattr(collect, "_available_memory", lambda: 2**20)
+    with pytest.raises(DatasetError, match=r"GiB of memory available, assembling 4105 CarGoal2 "
+                                           r"trajectories needs about [0-9.]+ GiB"):
+        collect.check_disk(get_task("CarGoal2"), collect.make_spec(get_task("CarGoal2")),
+                           tmp_path)
 
 
 def test_data_cli_errors(tmp_path, monkeypatch, capsys):

@@ -387,7 +387,25 @@ def needed_disk_bytes(task: TaskSpec, spec: GenSpec) -> int:
     return int(per_step * task.episode_len * spec.trajectories * (POOL_FACTOR + 1.2))
 
 
+def needed_memory_bytes(task: TaskSpec, spec: GenSpec) -> int:
+    """Memory to assemble and write the final file (its arrays about twice over)."""
+    per_step = 4 * (2 * task.obs_dim + task.act_dim + 2) + 2
+    return int(2 * per_step * task.episode_len * spec.trajectories)
+
+
+def _available_memory() -> Optional[int]:
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        return None
+    return None
+
+
 def check_disk(task: TaskSpec, spec: GenSpec, where: Path) -> None:
+    """DatasetError naming the sizes when the disk (pool + file) or the memory (assembling the
+    file) cannot hold the requested size."""
     where.mkdir(parents=True, exist_ok=True)
     need = needed_disk_bytes(task, spec)
     free = shutil.disk_usage(where).free
@@ -395,6 +413,11 @@ def check_disk(task: TaskSpec, spec: GenSpec, where: Path) -> None:
         raise DatasetError(f"{where}: {free / 2**30:.1f} GiB free, generating {spec.trajectories} "
                            f"{task.name} trajectories needs about {need / 2**30:.1f} GiB; free "
                            "space or pass a smaller --trajectories")
+    mem, avail = needed_memory_bytes(task, spec), _available_memory()
+    if avail is not None and avail < mem:
+        raise DatasetError(f"{avail / 2**30:.1f} GiB of memory available, assembling "
+                           f"{spec.trajectories} {task.name} trajectories needs about "
+                           f"{mem / 2**30:.1f} GiB; free memory or pass a smaller --trajectories")
 
 
 def generate_learned(task: TaskSpec, path: Path, trajectories: Optional[int] = None,
