@@ -43,12 +43,13 @@ def test_every_module_declares_the_protocol_and_act_checks_shapes(algo, task, re
     state = agent.init(jax.random.PRNGKey(0), hp)
     pp = agent.policy_params(state, hp)
     obs = jnp.asarray(reach_avoid_data.observations[:3])
-    chex.assert_shape(agent.act(pp, obs, jax.random.PRNGKey(1)), (3, task.act_dim))
+    act = jax.jit(agent.act)  # chex's shape checks run while tracing
+    chex.assert_shape(act(pp, obs, jax.random.PRNGKey(1)), (3, task.act_dim))
     # chex at the border: a wrong observation size or an unbatched observation is refused
     with pytest.raises(AssertionError):
-        agent.act(pp, jnp.zeros((3, task.obs_dim + 1)), jax.random.PRNGKey(1))
+        act(pp, jnp.zeros((3, task.obs_dim + 1)), jax.random.PRNGKey(1))
     with pytest.raises(AssertionError):
-        agent.act(pp, jnp.zeros((task.obs_dim,)), jax.random.PRNGKey(1))
+        act(pp, jnp.zeros((task.obs_dim,)), jax.random.PRNGKey(1))
 
 
 def test_unknown_algo_names_the_known_ones():
@@ -248,7 +249,3 @@ def test_a_sweep_marks_a_diverged_lane_and_the_others_finish(task, reach_avoid_d
     assert bad["normalized_reward"]["mean"] is None and bad["safe"] is False
     assert bad["normalized_cost"]["per_seed"] == [None, None]
     assert any("diverged in the block ending at step" in m for m in msgs)
-    # the same lanes in stop mode (train): the run stops instead
-    with pytest.raises(TrainingDiverged):
-        Run(cfg, task, reach_avoid_data, tmp_path / "s", lanes, progress=False,
-            log=lambda m: None).run()

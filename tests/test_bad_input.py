@@ -201,6 +201,7 @@ def test_disk_full_in_a_checkpoint_names_it(places, capsys, monkeypatch, data_di
     assert "the last complete checkpoint, step 10, is kept" in err
 
 
+@pytest.mark.slow
 def test_file_size_limit_in_a_subprocess_keeps_the_checkpoints_and_resumes(places, data_dir):
     """A real failing write: under RLIMIT_FSIZE = 128 KiB the growing metrics log fails (EFBIG)
     in the actor phase; the error is one line, the checkpoints read back, and a resume without

@@ -62,6 +62,7 @@ def test_fast_check_writes_its_file_and_names_what_failed(tmp_path, capsys):
     assert "does not say its task" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_imitability_trains_the_three_cloners(tmp_path, reach_avoid_data):
     path = tmp_path / "ra.hdf5"
     write_dsrl(path, reach_avoid_data, attrs={"task": "ReachAvoid"})

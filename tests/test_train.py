@@ -14,6 +14,9 @@ from r2pac_jax.train import Lanes, Run, chunk_dataset, main, make_train
 from r2pac_jax.agents import algo_names
 
 ALL_ALGOS = algo_names()
+# the algorithms of the pre-protocol fixture train bitwise as they did (test_agent_fixture.py);
+# this test covers the others
+NEW_ALGOS = [a for a in ALL_ALGOS if a.endswith("-mlp")]
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +68,7 @@ def test_same_seed_same_result(reach_avoid_data, task):
                               np.asarray(c.params["actor"]["params"]["MLP_0"]["Dense_0"]["kernel"]))
 
 
-@pytest.mark.parametrize("algo", ALL_ALGOS)
+@pytest.mark.parametrize("algo", NEW_ALGOS)
 def test_every_algo_trains_and_acts(reach_avoid_data, task, algo):
     cfg = tiny_config(algo)
     data = chunk_dataset(cfg, task, reach_avoid_data)
