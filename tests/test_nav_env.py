@@ -197,6 +197,7 @@ def test_evaluate_runs_navigation_episodes():
     assert np.isfinite(out["normalized_reward"])
 
 
+@pytest.mark.slow
 def test_mjx_backend_agrees_with_c_mujoco_over_a_few_steps():
     """The one MJX test of the default suite (its CPU compile takes about a minute)."""
     mj = make_env("PointGoal1", physics="mujoco")
