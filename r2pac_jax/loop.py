@@ -45,8 +45,11 @@ def make_data(cfg: Config, task: TaskSpec, ds: Dataset):
 chunk_dataset = make_data  # the name of earlier releases
 
 
-def make_block(agent, phase: str) -> Callable:
-    """block(state, hp, data) -> (state, metrics): begin_block + `threshold_every` steps."""
+def make_block(agent, phase: str, first_bad: bool = False) -> Callable:
+    """block(state, hp, data) -> (state, metrics): begin_block + `threshold_every` steps.
+
+    With `first_bad`, also the index (0-based, within the block) of the first step whose
+    metrics hold a NaN or inf, or -1: the run names the exact step of a divergence."""
     cfg = agent.cfg
 
     def block(state, hp: dict, data):
@@ -58,7 +61,12 @@ def make_block(agent, phase: str) -> Callable:
             return agent.update(s.replace(key=key), batch, hp, phase)
 
         state, metrics = jax.lax.scan(step, state, None, length=cfg.threshold_every)
-        return state, jax.tree_util.tree_map(jnp.mean, metrics)
+        means = jax.tree_util.tree_map(jnp.mean, metrics)
+        if not first_bad:
+            return state, means
+        ok = jnp.stack([jnp.isfinite(v).reshape(v.shape[0], -1).all(-1)
+                        for v in jax.tree_util.tree_leaves(metrics)]).all(0)
+        return state, means, jnp.where(ok.all(), -1, jnp.argmin(ok))
 
     return block
 
@@ -96,7 +104,7 @@ def compiled(cfg: Config, obs_dim: int, act_dim: int):
     """Jitted, lane-vmapped pieces for a config, shared by every `Run` with the same config
     (a resumed run or a sweep's next group reuses the compiled programs)."""
     agent = make_agent(cfg, obs_dim, act_dim)
-    blocks = {p: jax.jit(jax.vmap(make_block(agent, p), in_axes=(0, 0, None)))
+    blocks = {p: jax.jit(jax.vmap(make_block(agent, p, first_bad=True), in_axes=(0, 0, None)))
               for p in cfg.phases}
     return agent, jax.jit(jax.vmap(agent.init)), blocks, jax.jit(jax.vmap(agent.policy_params))
 
@@ -281,8 +289,9 @@ class Run:
                 phase, phase_step = schedule[i]
                 step = (i + 1) * cfg.threshold_every
                 t0 = time.time()
-                state, metrics = self._blocks[phase](state, hp, self.data)
+                state, metrics, first_bad = self._blocks[phase](state, hp, self.data)
                 metrics = jax.tree_util.tree_map(np.asarray, metrics)  # waits for the block
+                first_bad = np.asarray(first_bad)
                 dt = time.time() - t0
                 steps_timed += cfg.threshold_every
                 for lane in range(self.lanes.size):
@@ -290,7 +299,8 @@ class Run:
                     row.update(step=step, phase=phase, lane=lane, seed=self.lanes.seeds[lane],
                                steps_per_s=cfg.threshold_every / dt)
                     logs.write("metrics", row, tb_prefix=f"train/lane{lane}")
-                self._check_finite(metrics, step, ckpt.latest_step())
+                self._check_finite(metrics, step - cfg.threshold_every + 1 + first_bad,
+                                   ckpt.latest_step())
                 last = i == len(schedule) - 1
                 if self._evaluates(phase, phase_step, last):
                     res = self.evaluate(state, step)
@@ -333,29 +343,32 @@ class Run:
             logs.close()
             ckpt.close()
 
-    def _check_finite(self, metrics: dict, step: int, last_good: Optional[int]) -> None:
+    def _check_finite(self, metrics: dict, bad_step: np.ndarray, last_good: Optional[int]) -> None:
+        """bad_step [L]: the first non-finite step of each lane in the block (run steps)."""
         bad = {k: [int(x) for x in np.flatnonzero(~np.isfinite(v)) if int(x) not in
                    self.diverged] for k, v in metrics.items()}
         bad = {k: v for k, v in bad.items() if v}
         if bad and self.nonfinite == "mark":
             for lane in sorted({ln for v in bad.values() for ln in v}):
                 terms = sorted(k for k, v in bad.items() if lane in v)
+                step = int(bad_step[lane])
                 self.diverged[lane] = dict(seed=self.lanes.seeds[lane], step=step, terms=terms)
                 self.log(f"lane {lane} (seed {self.lanes.seeds[lane]}, cell "
-                         f"{self.lanes.cell_hparams[self.lanes.cells[lane]]}) diverged in the "
-                         f"block ending at step {step} (non-finite {', '.join(terms)}); it is "
-                         "marked and the other lanes go on")
+                         f"{self.lanes.cell_hparams[self.lanes.cells[lane]]}) diverged at step "
+                         f"{step} (non-finite {', '.join(terms)}); it is marked and the other "
+                         "lanes go on")
             return
         if bad:
             lanes = sorted({lane for v in bad.values() for lane in v})
             seeds = [self.lanes.seeds[i] for i in lanes]
             kept = (f"the last checkpoint (step {last_good}) is kept" if last_good is not None
                     else "no checkpoint was written")
+            first = int(min(bad_step[i] for i in lanes))
             raise TrainingDiverged(
-                f"{self.task.name} {self.cfg.algo}: non-finite {', '.join(sorted(bad))} in the "
-                f"block ending at step {step} (lanes {lanes}, seeds {seeds}); training stopped and "
-                f"{kept}. Lower the learning rate (--set lr=...) or check the dataset for "
-                "non-finite values")
+                f"{self.task.name} {self.cfg.algo}: non-finite {', '.join(sorted(bad))} first at "
+                f"step {first} (lanes {lanes}, seeds {seeds}); training stopped and {kept}. "
+                "Lower the learning rate (--set lr=...) or check the dataset for non-finite "
+                "values")
 
     def save_policy(self, state) -> None:
         """The final policy parameters of every lane (what `load_policy` reads)."""

@@ -1,5 +1,6 @@
 """The agent protocol: every algorithm behind it, the MLP cloners, and the loop's generic checks."""
 import json
+import re
 
 import chex
 import jax
@@ -211,7 +212,7 @@ def test_non_finite_training_stops_with_the_last_checkpoint_kept(task, reach_avo
     cfg = tiny_config("r2pac", steps=40, eval_episodes=0, checkpoint_every=10, lr=1e38,
                       schedule="joint")
     run = Run(cfg, task, reach_avoid_data, tmp_path / "nan", Lanes.build(cfg, [0, 1]), **_quiet())
-    with pytest.raises(TrainingDiverged, match=r"non-finite .*lanes \[0, 1\]"):
+    with pytest.raises(TrainingDiverged, match=r"non-finite .*first at step \d+ \(lanes \[0, 1\]"):
         run.run()
     assert not (tmp_path / "nan" / "results.json").exists()
     steps = Checkpointer(tmp_path / "nan" / "checkpoints").latest_step()
@@ -246,6 +247,40 @@ def test_a_sweep_marks_a_diverged_lane_and_the_others_finish(task, reach_avoid_d
     assert "diverged" not in ok or not ok["diverged"]
     assert all(x is not None for x in ok["normalized_reward"]["per_seed"])
     assert [d["seed"] for d in bad["diverged"]] == [0, 1]
+    # the huge penalty overflows within the first block (threshold_every steps)
+    assert all(1 <= d["step"] <= cfg.threshold_every for d in bad["diverged"])
     assert bad["normalized_reward"]["mean"] is None and bad["safe"] is False
     assert bad["normalized_cost"]["per_seed"] == [None, None]
-    assert any("diverged in the block ending at step" in m for m in msgs)
+    assert any(re.search(r"diverged at step \d+ \(non-finite", m) for m in msgs)
+
+
+def test_a_block_names_the_first_non_finite_step():
+    """make_block(first_bad=True) returns the 0-based index of the first step whose metrics are
+    not finite (a toy agent whose loss turns NaN at its 5th step of 8), and -1 when all are."""
+    import types
+
+    import flax.struct
+    import jax
+    import jax.numpy as jnp
+
+    from r2pac_jax.loop import make_block
+
+    @flax.struct.dataclass
+    class S:
+        key: jax.Array
+        n: jax.Array
+
+    def update(s, batch, hp, phase):
+        n = s.n + 1
+        return s.replace(n=n), dict(loss=jnp.where(n >= hp["bad_from"], jnp.nan, 1.0),
+                                    ok=jnp.ones(3))
+
+    agent = types.SimpleNamespace(cfg=types.SimpleNamespace(threshold_every=8),
+                                  begin_block=lambda s, hp, d: s, sample=lambda d, k: None,
+                                  update=update)
+    block = jax.jit(make_block(agent, "joint", first_bad=True))
+    s0 = S(key=jax.random.PRNGKey(0), n=jnp.int32(0))
+    state, means, first = block(s0, dict(bad_from=5), None)
+    assert int(first) == 4 and int(state.n) == 8 and np.isnan(means["loss"])
+    _, means, first = block(s0, dict(bad_from=100), None)
+    assert int(first) == -1 and means["loss"] == 1.0
