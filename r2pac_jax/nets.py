@@ -116,3 +116,110 @@ class DeterministicActor(nn.Module):
             if n < len(sizes) - 1:
                 x = nn.relu(x)
         return jnp.tanh(x)
+
+
+# ---------------------------------------------------------------------------------------------
+# The networks of OSRL's baselines (osrl/common/net.py): ReLU MLPs with PyTorch's default init.
+
+LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # OSRL's SquashedGaussianMLPActor clamp
+
+
+def torch_dense(features: int, fan_in: int, name=None) -> nn.Dense:
+    """nn.Linear(fan_in, features) as PyTorch initialises it."""
+    return nn.Dense(features, kernel_init=torch_linear_init(fan_in),
+                    bias_init=torch_linear_init(fan_in), name=name)
+
+
+class TorchMLP(nn.Module):
+    """OSRL's `mlp`: ReLU between layers, nothing after the last. x [B, i] -> [B, out_dim]."""
+
+    hidden_dims: Sequence[int]
+    out_dim: int
+
+    @nn.compact
+    def __call__(self, x):
+        sizes = list(self.hidden_dims) + [self.out_dim]
+        for n, h in enumerate(sizes):
+            x = torch_dense(h, x.shape[-1])(x)
+            if n < len(sizes) - 1:
+                x = nn.relu(x)
+        return x
+
+
+class SquashedGaussianActor(nn.Module):
+    """OSRL's SquashedGaussianMLPActor: obs [B, o] -> (mu [B, A], log_std [B, A]) of the
+    pre-tanh Gaussian (ReLU trunk, ReLU after its last layer too, two linear heads)."""
+
+    hidden_dims: Sequence[int]
+    act_dim: int
+
+    @nn.compact
+    def __call__(self, obs):
+        x = obs
+        for h in self.hidden_dims:
+            x = nn.relu(torch_dense(h, x.shape[-1])(x))
+        mu = torch_dense(self.act_dim, x.shape[-1], name="mu")(x)
+        log_std = torch_dense(self.act_dim, x.shape[-1], name="log_std")(x)
+        return mu, jnp.clip(log_std, LOG_STD_MIN, LOG_STD_MAX)
+
+
+def squashed_sample(mu, log_std, key):
+    """tanh(u), u ~ N(mu, std) reparameterised, with log pi(tanh u) (OSRL's formula):
+    mu, log_std [B, A] -> (action [B, A], logp [B], u [B, A])."""
+    u = mu + jnp.exp(log_std) * jax.random.normal(key, mu.shape)
+    logp = (-0.5 * ((u - mu) / jnp.exp(log_std)) ** 2 - log_std
+            - 0.5 * jnp.log(2.0 * jnp.pi)).sum(-1)
+    logp = logp - (2.0 * (jnp.log(2.0) - u - jax.nn.softplus(-2.0 * u))).sum(-1)
+    return jnp.tanh(u), logp, u
+
+
+class TorchQEnsemble(nn.Module):
+    """OSRL's EnsembleQCritic: `num` ReLU MLPs on [obs, act]: [B, o], [B, A] -> [num, B]."""
+
+    hidden_dims: Sequence[int]
+    num: int = 2
+
+    @nn.compact
+    def __call__(self, obs, act):
+        x = jnp.concatenate([obs, act], axis=-1)
+        ens = nn.vmap(TorchMLP, variable_axes={"params": 0}, split_rngs={"params": True},
+                      in_axes=None, out_axes=0, axis_size=self.num)
+        return ens(self.hidden_dims, 1)(x)[..., 0]
+
+
+class VAE(nn.Module):
+    """OSRL's conditional VAE of BCQ-L and CPQ: the encoder maps (s, a) to N(mean, std) over a
+    latent of `latent_dim` (log std clamped to [-4, 15]); the decoder maps (s, z) to
+    tanh(...) in [-1, 1]; two ReLU layers of `hidden` units each side."""
+
+    obs_dim: int
+    act_dim: int
+    hidden: int
+    latent_dim: int
+
+    def setup(self):
+        o, a, h, z = self.obs_dim, self.act_dim, self.hidden, self.latent_dim
+        self.e1, self.e2 = torch_dense(h, o + a), torch_dense(h, h)
+        self.mean, self.log_std = torch_dense(z, h), torch_dense(z, h)
+        self.d1, self.d2, self.d3 = torch_dense(h, o + z), torch_dense(h, h), torch_dense(a, h)
+
+    def encode(self, obs, act):
+        """(s [B, o], a [B, A]) -> (mean [B, Z], std [B, Z])."""
+        x = nn.relu(self.e2(nn.relu(self.e1(jnp.concatenate([obs, act], -1)))))
+        return self.mean(x), jnp.exp(jnp.clip(self.log_std(x), -4.0, 15.0))
+
+    def decode(self, obs, z):
+        """(s [B, o], z [B, Z]) -> a [B, A]."""
+        x = nn.relu(self.d2(nn.relu(self.d1(jnp.concatenate([obs, z], -1)))))
+        return jnp.tanh(self.d3(x))
+
+    def __call__(self, obs, act, key):
+        """-> (reconstruction [B, A], mean [B, Z], std [B, Z]), z drawn with `key`."""
+        mean, std = self.encode(obs, act)
+        return self.decode(obs, mean + std * jax.random.normal(key, std.shape)), mean, std
+
+
+def vae_kl(mean, std) -> jax.Array:
+    """OSRL's KL term per sample, -0.5 (1 + log std^2 - mean^2 - std^2) averaged over the
+    latent: [..., Z] -> [...]."""
+    return -0.5 * (1.0 + jnp.log(std**2) - mean**2 - std**2).mean(-1)

@@ -20,7 +20,9 @@ from r2pac_jax.config import make_config  # noqa: E402
 
 TINY = dict(steps=20, batch_size=32, hidden_dims=(16, 16), actor_hidden_dims=(16, 16),
             threshold_every=10, eval_every=10, checkpoint_every=10, flow_steps=4,
-            num_candidates=4, threshold_subset=256, eval_episodes=2, seeds=2)
+            num_candidates=4, threshold_subset=256, eval_episodes=2, seeds=2,
+            # the OSRL-ported baselines' networks
+            a_hidden_dims=(16, 16), c_hidden_dims=(16, 16), vae_hidden=16)
 
 
 def tiny_config(algo="r2pac", task="ReachAvoid", **kw):

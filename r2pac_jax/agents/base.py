@@ -24,7 +24,7 @@ import jax
 from flax import struct
 
 from r2pac_jax.config import Config, ConfigError
-from r2pac_jax.data import chunks
+from r2pac_jax.data import chunks, transitions
 from r2pac_jax.data.dsrl import Dataset
 from r2pac_jax.tasks import TaskSpec
 
@@ -134,6 +134,36 @@ class ChunkAlgorithm:
 
     def summary(self, state) -> dict:
         return {}
+
+
+class TransitionAlgorithm(ChunkAlgorithm):
+    """Base of the one-step baselines ported from OSRL (CPQ, BCQ-L, COptiDICE): they train on
+    `data.transitions` (rows sampled uniformly, OSRL's done rule unless the config's `done_rule`
+    says otherwise); chunk_len is pinned to 1 by their modules."""
+
+    def check_data(self, task: TaskSpec, ds: Dataset) -> None:
+        if ds.obs_dim != task.obs_dim or ds.act_dim != task.act_dim:
+            raise ConfigError(f"dataset {ds.source} has obs/act sizes {ds.obs_dim}/{ds.act_dim}, "
+                              f"task {task.name} needs {task.obs_dim}/{task.act_dim}")
+        self.keep_episodes(task, ds)
+
+    def make_data(self, task: TaskSpec, ds: Dataset) -> transitions.TransitionData:
+        cfg = self.cfg
+        return transitions.build_transitions(ds, cfg.reward_scale, cfg.cost_scale,
+                                             cfg.done_rule, self.keep_episodes(task, ds))
+
+    def sample(self, data: transitions.TransitionData, key: jax.Array):
+        return transitions.sample(data, key, self.cfg.batch_size)
+
+
+def check_choice(name: str, value, choices) -> None:
+    if value not in choices:
+        raise ConfigError(f"{name} must be one of {', '.join(map(str, choices))}; got {value!r}")
+
+
+def soft_update(target, online, tau):
+    """Polyak averaging of parameter pytrees: tau * online + (1 - tau) * target."""
+    return jax.tree_util.tree_map(lambda t, o: (1.0 - tau) * t + tau * o, target, online)
 
 
 def no_hparams(values: dict) -> None:

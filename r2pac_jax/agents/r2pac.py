@@ -18,7 +18,8 @@ import optax
 from flax import struct
 
 from r2pac_jax.agents import critics, extraction, flow, gaussian
-from r2pac_jax.agents.base import ChunkAlgorithm, check_act, check_obs, check_positive, check_sizes
+from r2pac_jax.agents.base import (ChunkAlgorithm, check_act, check_obs, check_positive,
+                                   check_sizes, soft_update)
 from r2pac_jax.agents.selection import select_candidate
 from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data.chunks import Batch, ChunkedData
@@ -142,10 +143,6 @@ class AgentState:
     threshold: jax.Array  # [] safety threshold l
     step: jax.Array  # [] int32 gradient steps taken
     key: jax.Array
-
-
-def _polyak(target, online, rate):
-    return jax.tree_util.tree_map(lambda t, o: (1.0 - rate) * t + rate * o, target, online)
 
 
 class Agent(ChunkAlgorithm):
@@ -274,7 +271,7 @@ class Agent(ChunkAlgorithm):
         (l_qr, qr), g = jax.value_and_grad(qr_loss, has_aux=True)(params["qr"])
         params["qr"], opt["qr"] = self._apply_grads(params, opt, "qr", g)
 
-        target = {k: _polyak(tgt[k], params[k], cfg.polyak) for k in ("qc", "qr")}
+        target = {k: soft_update(tgt[k], params[k], cfg.polyak) for k in ("qc", "qr")}
         unsafe_next = (vc_next > threshold) & (batch.bootstrap > 0)
         metrics = dict(
             loss_vc=l_vc, loss_qc=l_qc, loss_vr=l_vr, loss_qr=l_qr,

@@ -1,0 +1,210 @@
+"""Our ports of OSRL's baselines against OSRL's own code on the same file, in one run.
+
+    bash benchmarks/peers/install_osrl.sh ../osrl-venv/venv    # once: OSRL's side virtualenv
+    python benchmarks/osrl_baselines.py --algo cpq --dataset FILE.hdf5 [--task T] [--seeds 3]
+        [--steps 3000] [--episodes 20] [--out runs/osrl_baselines]
+
+Both sides at OSRL's settings for the algorithm (networks, batch, learning rates, scales) and the
+same reduced number of gradient steps (stated in the table; OSRL's CPQ runs ~10 steps/s on two
+cores, so its 100k steps would take hours per seed).
+1. Speed, evaluation excluded, compile time apart. Ours: the compiled block (`--block` steps;
+   median over blocks after a warm-up block), 1 seed and `--seeds` seeds vmapped. Theirs: each
+   scoring run's own steps/s after a warm-up (torch at 2 threads, bulk numpy batches, so only the
+   update is timed), one process per seed.
+2. Scores: ours through `Run` (seeds vmapped, evaluated at the last step); theirs one process per
+   seed (benchmarks/peers/osrl_<algo>_peer.py), the actor exported as npz and loaded into our
+   network, evaluated in our environment with the same evaluation keys and episodes.
+   Agreement (the baselines issue): |mean ours - mean theirs| <= 2 x the larger seed std, for
+   reward and for cost.
+Each finished part is kept in OUT (a rerun skips it); OUT/summary.json and OUT/table.md at the end.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from osrl_common import _json, algo_speed, machine  # noqa: E402
+
+HERE = Path(__file__).parent
+
+
+def cpq_params(npz_files: list[Path]) -> dict:
+    """OSRL CPQ actors (trunk Linear layers, then mu; W [out, in]) -> our SquashedGaussianActor
+    params stacked over seeds [L, ...]. The log-std head is not used by deterministic actions:
+    it is filled with zeros."""
+    trees = []
+    for f in npz_files:
+        z = np.load(f)
+        n = len([k for k in z.files if k.startswith("W")])
+        p = {f"Dense_{i}": {"kernel": z[f"W{i}"].T, "bias": z[f"b{i}"]} for i in range(n - 1)}
+        p["mu"] = {"kernel": z[f"W{n - 1}"].T, "bias": z[f"b{n - 1}"]}
+        p["log_std"] = {"kernel": np.zeros_like(z[f"W{n - 1}"].T),
+                        "bias": np.zeros_like(z[f"b{n - 1}"])}
+        trees.append(p)
+    stacked = jax.tree_util.tree_map(lambda *x: jnp.asarray(np.stack(x)), *trees)
+    return {"actor": {"params": stacked}}
+
+
+# algo -> (peer script, its extra arguments from the task, the params converter)
+PEERS = {
+    "cpq": ("osrl_cpq_peer.py",
+            lambda task: ["--cost-limit", str(task.kappa), "--episode-len", str(task.episode_len)],
+            cpq_params),
+}
+
+
+def peer(args, task, file: str, seed: int, out: Path) -> dict:
+    done = out.parent / (out.name + ".json")
+    if done.exists():
+        return json.loads(done.read_text())
+    out.parent.mkdir(parents=True, exist_ok=True)
+    script, extra, _ = PEERS[args.algo]
+    cmd = [args.osrl_python, str(HERE / "peers" / script), file, *extra(task), "--seed",
+           str(seed), "--steps", str(args.steps), "--threads", "2", "--out", str(out)]
+    env = dict(os.environ, WANDB_MODE="disabled", PYTHONNOUSERSITE="1")
+    subprocess.run(cmd, check=True, env=env, capture_output=True, text=True)
+    return json.loads(done.read_text())
+
+
+def _stats(values) -> dict:
+    v = [float(x) for x in values]
+    return dict(mean=float(np.mean(v)), std=float(np.std(v)), per_seed=v)
+
+
+def agree(a: dict, b: dict) -> bool:
+    """The issue's rule: |mean a - mean b| <= 2 x the larger seed std."""
+    return abs(a["mean"] - b["mean"]) <= 2 * max(a["std"], b["std"])
+
+
+def scores(args, task, ds, file: str, out: Path) -> dict:
+    from r2pac_jax.agents import make_agent
+    from r2pac_jax.config import make_config
+    from r2pac_jax.evaluate import LaneEvaluator, eval_keys
+    from r2pac_jax.lanes import Lanes
+    from r2pac_jax.loop import Run
+
+    seeds = list(range(args.seeds))
+    over = dict(steps=args.steps, seeds=args.seeds, eval_episodes=args.episodes,
+                eval_every=args.steps, checkpoint_every=args.steps, threshold_every=args.block)
+    cfg = make_config(task, args.algo, "quick", over)
+
+    def ours():
+        t0 = time.time()
+        res = Run(cfg, task, ds, out / "ours", Lanes.build(cfg, seeds), progress=False,
+                  log=lambda m: None).run(resume=True)
+        return dict(normalized_reward=res["normalized_reward"],
+                    normalized_cost=res["normalized_cost"], wall_s=time.time() - t0,
+                    train_steps_per_s=res["train_steps_per_s"])
+
+    def theirs():
+        infos = [peer(args, task, file, s, out / "osrl" / f"s{s}") for s in seeds]
+        agent = make_agent(cfg, task.obs_dim, task.act_dim)
+        pp = PEERS[args.algo][2]([out / "osrl" / f"s{s}.npz" for s in seeds])
+        ev = LaneEvaluator(agent.act, task, args.episodes)(pp, eval_keys(seeds, cfg.total_steps))
+        return dict(normalized_reward=_stats(ev["normalized_reward"]),
+                    normalized_cost=_stats(ev["normalized_cost"]),
+                    train_steps_per_s=[i["steps_per_s"] for i in infos],
+                    curves=[i["curve"] for i in infos])
+
+    mine = _json(out / "ours.json", ours)
+    osrl = _json(out / "osrl.json", theirs)
+    return dict(ours=mine, osrl=osrl,
+                agree=dict(reward=agree(mine["normalized_reward"], osrl["normalized_reward"]),
+                           cost=agree(mine["normalized_cost"], osrl["normalized_cost"])))
+
+
+def write_table(s: dict, out: Path) -> str:
+    from r2pac_jax.io import atomic_write_text
+
+    lines = [f"OSRL {s['algo']} vs r2pac-jax `{s['algo']}` on {s['task']} "
+             f"({Path(s['dataset']).name}); {s['steps']} gradient steps each side, "
+             f"{s['seeds']} seeds, {s['episodes']} episodes per seed in our environment; "
+             f"{s['machine']['cpus']} CPUs, jax {s['machine']['jax']}, {s['machine']['date']}", ""]
+    sp, sc = s.get("speed"), s.get("scores")
+    if sp and sc:
+        theirs = float(np.median(sc["osrl"]["train_steps_per_s"]))
+        lines += ["| trainer | steps/s | seed-steps/s | vs OSRL |", "|---|---|---|---|",
+                  f"| OSRL (torch 2 threads, bulk batches; median of the seeds' runs) | "
+                  f"{theirs:.1f} | {theirs:.1f} | 1.00 |"]
+        for r in sp["ours"]:
+            lines.append(f"| ours, {r['lanes']} seed(s) vmapped (compile {r['compile_s']:.1f} s) "
+                         f"| {r['steps_per_s']:.1f} | {r['seed_steps_per_s']:.1f} | "
+                         f"{r['seed_steps_per_s'] / theirs:.2f} |")
+        lines.append("")
+    if sc:
+        o, m = sc["osrl"], sc["ours"]
+
+        def f(x):
+            return f"{x['mean']:.2f} ± {x['std']:.2f}"
+
+        lines += ["| side | reward | cost | cost per seed |", "|---|---|---|---|",
+                  f"| OSRL | {f(o['normalized_reward'])} | {f(o['normalized_cost'])} | "
+                  f"{' '.join(f'{x:.2f}' for x in o['normalized_cost']['per_seed'])} |",
+                  f"| ours | {f(m['normalized_reward'])} | {f(m['normalized_cost'])} | "
+                  f"{' '.join(f'{x:.2f}' for x in m['normalized_cost']['per_seed'])} |", "",
+                  f"Agreement (|mean diff| <= 2 x larger std): reward "
+                  f"{'yes' if sc['agree']['reward'] else 'NO'}, cost "
+                  f"{'yes' if sc['agree']['cost'] else 'NO'}."]
+    text = "\n".join(lines)
+    atomic_write_text(out / "table.md", text + "\n")
+    return text
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--algo", choices=sorted(PEERS), required=True)
+    ap.add_argument("--dataset", required=True, help="a DSRL-format file (its name is captioned)")
+    ap.add_argument("--task", default=None, help="default: read off the file's name")
+    ap.add_argument("--osrl-venv", default=str(HERE.parent.parent / "osrl-venv" / "venv"))
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--steps", type=int, default=3000)
+    ap.add_argument("--block", type=int, default=500, help="our compiled block (steps)")
+    ap.add_argument("--episodes", type=int, default=20)
+    ap.add_argument("--out", default="runs/osrl_baselines")
+    args = ap.parse_args(argv)
+    args.osrl_python = str(Path(args.osrl_venv) / "bin" / "python")
+    if not Path(args.osrl_python).exists():
+        print(f"error: no OSRL virtualenv at {args.osrl_venv}; make it with "
+              f"bash benchmarks/peers/install_osrl.sh {args.osrl_venv}", file=sys.stderr)
+        return 2
+    if args.steps % args.block:
+        print(f"error: --steps {args.steps} must be a multiple of --block {args.block}",
+              file=sys.stderr)
+        return 2
+    from r2pac_jax.data import load_task_dataset
+    from r2pac_jax.data.checks import file_task
+    from r2pac_jax.tasks import get_task
+
+    name = args.task or file_task(args.dataset)
+    if name is None:
+        print(f"error: cannot tell the task from {args.dataset}; pass --task", file=sys.stderr)
+        return 2
+    task = get_task(name)
+    ds = load_task_dataset(task, args.dataset, announce=print)
+    out = Path(args.out) / f"{args.algo}-{task.name}"
+    out.mkdir(parents=True, exist_ok=True)
+    summary = dict(algo=args.algo, task=task.name, dataset=ds.source, seeds=args.seeds,
+                   steps=args.steps, episodes=args.episodes, machine=machine())
+    summary["scores"] = scores(args, task, ds, ds.source, out)
+    summary["speed"] = _json(out / "speed.json", lambda: dict(
+        ours=[algo_speed(task, ds, args.algo, n, block_steps=args.block)
+              for n in (1, args.seeds)], machine=machine()))
+    from r2pac_jax.io import atomic_write_json
+
+    atomic_write_json(out / "summary.json", summary)
+    print(write_table(summary, out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
