@@ -55,11 +55,28 @@ def cpq_params(npz_files: list[Path]) -> dict:
     return {"actor": {"params": stacked}}
 
 
+def bcq_lag_params(npz_files: list[Path]) -> dict:
+    """OSRL BCQ-L perturbation actors and VAEs -> our params stacked over seeds [L, ...]."""
+    trees = []
+    for f in npz_files:
+        z = np.load(f)
+        n = len([k for k in z.files if k.startswith("W")])
+        actor = {f"Dense_{i}": {"kernel": z[f"W{i}"].T, "bias": z[f"b{i}"]} for i in range(n)}
+        vae = {m: {"kernel": z[f"vae_{m}_W"].T, "bias": z[f"vae_{m}_b"]}
+               for m in ("e1", "e2", "mean", "log_std", "d1", "d2", "d3")}
+        trees.append({"actor": {"params": actor}, "vae": {"params": vae}})
+    return jax.tree_util.tree_map(lambda *x: jnp.asarray(np.stack(x)), *trees)
+
+
+def _q_peer(task) -> list[str]:
+    return ["--cost-limit", str(task.kappa), "--episode-len", str(task.episode_len)]
+
+
 # algo -> (peer script, its extra arguments from the task, the params converter)
 PEERS = {
-    "cpq": ("osrl_cpq_peer.py",
-            lambda task: ["--cost-limit", str(task.kappa), "--episode-len", str(task.episode_len)],
-            cpq_params),
+    "cpq": ("osrl_q_peer.py", lambda task: ["--algo", "cpq", *_q_peer(task)], cpq_params),
+    "bcq-lag": ("osrl_q_peer.py", lambda task: ["--algo", "bcq-lag", *_q_peer(task)],
+                bcq_lag_params),
 }
 
 

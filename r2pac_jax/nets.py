@@ -130,19 +130,24 @@ def torch_dense(features: int, fan_in: int, name=None) -> nn.Dense:
                     bias_init=torch_linear_init(fan_in), name=name)
 
 
+ACTIVATIONS = {"relu": nn.relu, "tanh": jnp.tanh, "none": lambda x: x}
+
+
 class TorchMLP(nn.Module):
-    """OSRL's `mlp`: ReLU between layers, nothing after the last. x [B, i] -> [B, out_dim]."""
+    """OSRL's `mlp`: `activation` between layers, `out_activation` after the last.
+    x [B, i] -> [B, out_dim]."""
 
     hidden_dims: Sequence[int]
     out_dim: int
+    activation: str = "relu"
+    out_activation: str = "none"
 
     @nn.compact
     def __call__(self, x):
         sizes = list(self.hidden_dims) + [self.out_dim]
         for n, h in enumerate(sizes):
             x = torch_dense(h, x.shape[-1])(x)
-            if n < len(sizes) - 1:
-                x = nn.relu(x)
+            x = ACTIVATIONS[self.activation if n < len(sizes) - 1 else self.out_activation](x)
         return x
 
 
@@ -217,6 +222,11 @@ class VAE(nn.Module):
         """-> (reconstruction [B, A], mean [B, Z], std [B, Z]), z drawn with `key`."""
         mean, std = self.encode(obs, act)
         return self.decode(obs, mean + std * jax.random.normal(key, std.shape)), mean, std
+
+
+def vae_sample_latent(key, batch: int, latent_dim: int) -> jax.Array:
+    """OSRL's `VAE.decode` without z: z ~ N(0, 1) clamped to [-0.5, 0.5], [batch, latent_dim]."""
+    return jnp.clip(jax.random.normal(key, (batch, latent_dim)), -0.5, 0.5)
 
 
 def vae_kl(mean, std) -> jax.Array:

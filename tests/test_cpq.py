@@ -7,6 +7,7 @@ import pytest
 
 from conftest import tiny_config
 from r2pac_jax.agents import cpq, make_agent
+from r2pac_jax.agents.constraints import q_threshold
 from r2pac_jax.config import ConfigError, default_hparams, make_config
 from r2pac_jax.data import transitions
 from r2pac_jax.data.dsrl import validate
@@ -15,8 +16,8 @@ from r2pac_jax.tasks import get_task
 
 def test_q_threshold_spreads_kappa_over_an_episode():
     # 2 (1 - 0.99^80) / (0.01 * 80), by hand: 1.38119...
-    assert np.isclose(float(cpq.q_threshold(2.0, 0.99, 80)), 2 * (1 - 0.99**80) / 0.8)
-    assert np.isclose(float(cpq.q_threshold(10.0, 0.99, 1)), 10.0)  # one step: kappa itself
+    assert np.isclose(float(q_threshold(2.0, 0.99, 80)), 2 * (1 - 0.99**80) / 0.8)
+    assert np.isclose(float(q_threshold(10.0, 0.99, 1)), 10.0)  # one step: kappa itself
     cfg = make_config("CarGoal2", "cpq")
     assert (cfg.cost_limit, cfg.episode_len) == (get_task("CarGoal2").kappa, 1000)
     assert (cfg.batch_size, cfg.reward_scale, cfg.actor_lr, cfg.critic_lr, cfg.num_q,

@@ -33,6 +33,7 @@ from flax import struct
 
 from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, check_choice,
                                    check_obs, check_positive, check_sizes, soft_update)
+from r2pac_jax.agents.constraints import q_threshold
 from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch
 from r2pac_jax.nets import VAE, SquashedGaussianActor, TorchQEnsemble, squashed_sample, vae_kl
@@ -99,11 +100,6 @@ def validate(c: CPQConfig) -> None:
         if getattr(c, k) < 1:
             raise ConfigError(f"{k} must be >= 1, got {getattr(c, k)}")
     check_choice("done_rule", c.done_rule, DONE_RULES)
-
-
-def q_threshold(cost_limit, discount: float, episode_len: int):
-    """CPQ's q_thres = cost_limit (1 - g^L) / ((1 - g) L): kappa spread evenly over an episode."""
-    return cost_limit * (1.0 - discount**episode_len) / (1.0 - discount) / episode_len
 
 
 def reward_target(rewards, done, q_next, qc_next, q_thres, discount):
