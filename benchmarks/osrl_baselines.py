@@ -77,6 +77,8 @@ PEERS = {
     "cpq": ("osrl_q_peer.py", lambda task: ["--algo", "cpq", *_q_peer(task)], cpq_params),
     "bcq-lag": ("osrl_q_peer.py", lambda task: ["--algo", "bcq-lag", *_q_peer(task)],
                 bcq_lag_params),
+    "coptidice": ("osrl_q_peer.py", lambda task: ["--algo", "coptidice", *_q_peer(task)],
+                  cpq_params),
 }
 
 
