@@ -15,12 +15,47 @@ def _fmt(x: float) -> str:
     return f"{x:.2f}"
 
 
-def results_table(cells: dict[str, dict[str, dict]], columns: Sequence[str] | None = None) -> str:
-    """Markdown table: one row per task, a (reward, cost) column pair per algorithm.
+def _cell_marks(row: dict) -> dict[str, str]:
+    """{algo: "★" | "☆"} for the best and second-best reward among the row's safe agents."""
+    safe = {a: r["normalized_reward"]["mean"] for a, r in row.items()
+            if _is_safe(r) and r["normalized_reward"]["mean"] is not None}
+    ranked = sorted(safe, key=safe.get, reverse=True)
+    return dict(zip(ranked, ("★", "☆")))
+
+
+def _is_safe(r: dict) -> bool:
+    c = r["normalized_cost"]["mean"]
+    return c is not None and c < SAFE_LIMIT
+
+
+def _family_rows(cells: dict, columns: Sequence[str], families: dict) -> dict[str, dict]:
+    """Per-family averages over the family's tasks of each algorithm's means (an algorithm
+    missing or diverged on one of the family's tasks gets no average)."""
+    out: dict[str, dict] = {}
+    for fam in dict.fromkeys(families[t] for t in cells if t in families):
+        tasks = [t for t in cells if families.get(t) == fam]
+        row = {}
+        for a in columns:
+            rs = [cells[t].get(a) for t in tasks]
+            if any(r is None or r["normalized_reward"]["mean"] is None
+                   or r["normalized_cost"]["mean"] is None for r in rs):
+                continue
+            row[a] = {k: dict(mean=float(np.mean([r[k]["mean"] for r in rs])))
+                      for k in ("normalized_reward", "normalized_cost")}
+        out[f"{fam} average ({len(tasks)} task{'s' if len(tasks) > 1 else ''})"] = row
+    return out
+
+
+def results_table(cells: dict[str, dict[str, dict]], columns: Sequence[str] | None = None,
+                  families: dict[str, str] | None = None) -> str:
+    """Markdown table in the paper's Table 1 format: one row per task, a (reward, cost) column
+    pair per algorithm.
 
     cells[task][algo] = results.json-like dict with `normalized_reward` / `normalized_cost`
-    holding `mean` and `std`. Safe agents (cost < 1) are **bold**; the safe agent with the
-    highest reward in a row is marked with a star; unsafe entries are in plain text.
+    holding `mean` (None when every seed diverged) and `std`. Safe agents (cost < 1) are
+    **bold**; among them the best reward is marked ★ and the second best ☆; unsafe entries
+    are plain with † after the cost (the paper greys them; Markdown has no grey). With
+    `families` ({task: family}), one average row per family follows the tasks.
     """
     if columns is None:
         seen: list[str] = []
@@ -30,10 +65,11 @@ def results_table(cells: dict[str, dict[str, dict]], columns: Sequence[str] | No
     head = "| Task | " + " | ".join(f"{a} reward ↑ | {a} cost ↓" for a in columns) + " |"
     sep = "|---|" + "---|---|" * len(columns)
     lines = [head, sep]
-    for task, row in cells.items():
-        safe_rewards = {a: r["normalized_reward"]["mean"] for a, r in row.items()
-                        if r["normalized_cost"]["mean"] < SAFE_LIMIT}
-        best = max(safe_rewards, key=safe_rewards.get) if safe_rewards else None
+    rows = dict(cells)
+    if families:
+        rows.update(_family_rows(cells, columns, families))
+    for task, row in rows.items():
+        marks = _cell_marks(row)
         parts = []
         for a in columns:
             r = row.get(a)
@@ -41,18 +77,57 @@ def results_table(cells: dict[str, dict[str, dict]], columns: Sequence[str] | No
                 parts += ["", ""]
                 continue
             nr, nc = r["normalized_reward"], r["normalized_cost"]
-            rs = f"{_fmt(nr['mean'])} ± {_fmt(nr.get('std', 0.0))}"
-            cs = f"{_fmt(nc['mean'])} ± {_fmt(nc.get('std', 0.0))}"
-            if a in safe_rewards:
+            if nr["mean"] is None or nc["mean"] is None:
+                parts += ["n/a", "n/a"]
+                continue
+            std = ("std" in nr) and ("std" in nc)
+            rs = _fmt(nr["mean"]) + (f" ± {_fmt(nr['std'])}" if std else "")
+            cs = _fmt(nc["mean"]) + (f" ± {_fmt(nc['std'])}" if std else "")
+            if _is_safe(r):
                 rs, cs = f"**{rs}**", f"**{cs}**"
-                if a == best:
-                    rs += " ★"
+                if a in marks:
+                    rs += f" {marks[a]}"
+            else:
+                cs += " †"
             parts += [rs, cs]
-        lines.append(f"| {task} | " + " | ".join(parts) + " |")
+        name = task if task in cells else f"*{task}*"
+        lines.append(f"| {name} | " + " | ".join(parts) + " |")
     lines.append("")
     lines.append("Mean ± std over seeds of the per-seed means over evaluation episodes. **Bold**: "
-                 "safe (normalised cost < 1); ★: the safe agent with the highest reward.")
+                 "safe (normalised cost < 1); ★ / ☆: the safe agents with the highest and "
+                 "second-highest reward; †: unsafe." + (" Family rows average the tasks' means."
+                                                         if families else ""))
     return "\n".join(lines)
+
+
+def plot_table(cells: dict[str, dict[str, dict]], columns: Sequence[str], path) -> Path:
+    """Normalised reward against normalised cost, one panel per task, one marker per
+    algorithm, the cost limit dashed (the table as a picture)."""
+    plt = _plt()
+    tasks = list(cells)
+    ncol = min(4, len(tasks))
+    nrow = (len(tasks) + ncol - 1) // ncol
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.6 * ncol, 3.0 * nrow), squeeze=False)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, t in enumerate(tasks):
+        ax = axes[k // ncol][k % ncol]
+        for j, a in enumerate(columns):
+            r = cells[t].get(a)
+            if r is None or r["normalized_cost"]["mean"] is None:
+                continue
+            nr, nc = r["normalized_reward"], r["normalized_cost"]
+            ax.errorbar(nc["mean"], nr["mean"], xerr=nc.get("std", 0), yerr=nr.get("std", 0),
+                        fmt="o", color=colors[j % len(colors)], label=a, capsize=2)
+        ax.axvline(SAFE_LIMIT, color="red", ls="--", lw=1)
+        ax.set_title(t, fontsize=9)
+        ax.set_xlabel("normalised cost")
+        ax.set_ylabel("normalised reward")
+    for k in range(len(tasks), nrow * ncol):
+        axes[k // ncol][k % ncol].axis("off")
+    axes[0][0].legend(fontsize=7)
+    out = _savefig(fig, path)
+    plt.close(fig)
+    return out
 
 
 def _savefig(fig, path) -> Path:
@@ -138,6 +213,8 @@ TASK_CONTEXT = {
 
 def setting_line(cfg, task) -> str:
     """Which setting produced a run: the algorithm's task values against the registry's."""
+    from r2pac_jax.agents import algo_module
+
     parts = [f"{cfg.algo}", f"{cfg.preset} preset", f"{cfg.seeds} seeds",
              f"{cfg.eval_episodes} evaluation episodes each"]
     named = []
@@ -147,8 +224,8 @@ def setting_line(cfg, task) -> str:
             val = getattr(cfg, key)
         except AttributeError:
             continue
-        if key == "chunk_len" and cfg.algo.endswith("-mlp"):
-            continue
+        if key in algo_module(cfg.algo).FIXED:
+            continue  # pinned by the algorithm (a one-step method's h = 1)
         named.append(f"{key}={val:g}" + ("" if val == reg else f" (registry: {reg:g})"))
     head = parts.pop(0)
     if named:

@@ -1,0 +1,254 @@
+"""Table 1 in one command: every task x algorithm x seed that is missing, then the paper's table.
+
+    python -m r2pac_jax.table --tasks HalfCheetahVelocity,CarGoal1 \
+        [--algos bc-all-mlp,cpq,coptidice,bcq-lag,r2pac] [--seeds 3] [--preset auto] \
+        [--episodes 20] [--steps N] [--estimate] --out DIR
+
+Each (task, algorithm) is one `Run` in DIR/TASK/ALGO (its seeds vmapped: one compiled program),
+resumed where it stopped; finished ones are read back. DIR/manifest.json pins the preset, the
+seeds, the episodes and each task's dataset (file name, data version, sha256): a DIR made with
+another preset or other data is refused, and so is a table whose tasks mix data versions.
+Writes DIR/table.md (`report.results_table`: safe bold, best and second-best safe reward
+marked, unsafe marked with a dagger, per-family averages), DIR/table.csv and DIR/table.png
+(normalised reward against cost, a panel per task). `--estimate` times one compiled block of
+every algorithm on the first task and prints the wall estimate, then stops.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import re
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+DEFAULT_ALGOS = "bc-all-mlp,cpq,coptidice,bcq-lag,r2pac"
+
+
+def data_version(path: str) -> str:
+    """The data version a dataset file's name carries: v2 learned, v1 scripted, DSRL, other."""
+    name = Path(path).name
+    m = re.search(r"-generated-ppolag-v(\d+)-", name)
+    if m:
+        return f"learned-v{m.group(1)}"
+    if re.search(r"-generated-ppolag-s\d+", name):
+        return "learned-v1"
+    if "-generated-" in name:
+        return "scripted-v1"
+    if name.startswith("Offline") or "dsrl" in str(path).lower():
+        return "dsrl"
+    return "other"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="python -m r2pac_jax.table",
+                                 description=__doc__.split("\n")[0])
+    ap.add_argument("--tasks", required=True, help="comma-separated task names")
+    ap.add_argument("--algos", default=DEFAULT_ALGOS, help=f"comma-separated (default "
+                    f"{DEFAULT_ALGOS})")
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--preset", default="auto", help="auto (quick on a CPU, paper on an "
+                    "accelerator) | quick | paper")
+    ap.add_argument("--episodes", type=int, default=20, help="evaluation episodes per seed")
+    ap.add_argument("--steps", type=int, default=None, help="gradient steps per phase for every "
+                    "algorithm (default: each algorithm's preset)")
+    ap.add_argument("--physics", default="auto")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--estimate", action="store_true", help="time one block per algorithm, "
+                    "print the estimated wall, run nothing")
+    ap.add_argument("--no-progress", action="store_true")
+    return ap
+
+
+def _configs(task, algos, args):
+    from r2pac_jax.config import make_config
+    from r2pac_jax.train import fit_blocks_to_steps
+
+    out = {}
+    for a in algos:
+        over = dict(seeds=args.seeds, eval_episodes=args.episodes if task.has_env else 0)
+        if args.steps is not None:
+            over["steps"] = args.steps
+            fit_blocks_to_steps(over, args.preset)
+        cfg = make_config(task, a, args.preset, over)
+        # one evaluation, at the end: the table reports the final policy
+        out[a] = cfg.replace(eval_every=cfg.steps)
+    return out
+
+
+def _manifest(out: Path, args, datasets: dict) -> dict:
+    """The identity of the table in DIR; refuse a DIR of another preset, seeds or data."""
+    from r2pac_jax.config import ConfigError
+    from r2pac_jax.io import atomic_write_json
+
+    want = dict(preset=args.preset, seeds=args.seeds, episodes=args.episodes, steps=args.steps,
+                datasets=datasets)
+    path = out / "manifest.json"
+    if path.exists():
+        have = json.loads(path.read_text())
+        for k in ("preset", "seeds", "episodes", "steps"):
+            if have.get(k) != want[k]:
+                raise ConfigError(f"{out} holds a table made with {k}={have.get(k)!r}, not "
+                                  f"{want[k]!r}: use another --out (a table never mixes them)")
+        for t, d in datasets.items():
+            old = have["datasets"].get(t)
+            if old is not None and (old["sha256"] != d["sha256"] or old["version"] != d["version"]):
+                raise ConfigError(f"{out} holds {t} results on {old['file']} ({old['version']}); "
+                                  f"this run would use {d['file']} ({d['version']}): use another "
+                                  "--out (a table never mixes data)")
+        have["datasets"].update(datasets)
+        want["datasets"] = have["datasets"]
+    versions = {d["version"] for d in want["datasets"].values()}
+    if len(versions) > 1:
+        raise ConfigError(f"the table's tasks would mix data versions {sorted(versions)}: make "
+                          "every task's data with one recipe (python -m r2pac_jax.data make "
+                          "--task T --source ppo-lagrangian), or make one table per version")
+    atomic_write_json(path, want)
+    return want
+
+
+def estimate(tasks, algos, args, ds_of, log) -> float:
+    """Seconds of training for the whole table, from one timed block per algorithm on the first
+    task (evaluation excluded; the environment steps of 2 x episodes x seeds come on top)."""
+    import jax
+
+    from r2pac_jax.agents import make_agent
+    from r2pac_jax.lanes import Lanes
+    from r2pac_jax.loop import make_block
+
+    task = tasks[0]
+    ds = ds_of(task)
+    total = 0.0
+    for a, cfg in _configs(task, algos, args).items():
+        agent = make_agent(cfg, task.obs_dim, task.act_dim)
+        data = agent.make_data(task, ds)
+        ln = Lanes.build(cfg, list(range(cfg.seeds)))
+        state = jax.jit(jax.vmap(agent.init))(ln.init_keys(), ln.hp)
+        fn = jax.jit(jax.vmap(make_block(agent, cfg.phases[0]), in_axes=(0, 0, None)))
+        state, _ = fn(state, ln.hp, data)
+        jax.block_until_ready(state)
+        t0 = time.perf_counter()
+        state, _ = fn(state, ln.hp, data)
+        jax.block_until_ready(state)
+        per_step = (time.perf_counter() - t0) / cfg.threshold_every
+        secs = per_step * cfg.total_steps * len(tasks)
+        log(f"{a}: {1 / per_step:.1f} steps/s ({cfg.seeds} seeds vmapped) x {cfg.total_steps} "
+            f"steps x {len(tasks)} task(s) ~ {secs / 60:.1f} min")
+        total += secs
+    log(f"training in all ~ {total / 3600:.2f} h on this machine (evaluation and compilation "
+        "on top)")
+    return total
+
+
+def write_outputs(out: Path, cells: dict, algos, families: dict, caption: str) -> str:
+    """table.md, table.csv and table.png from cells[task][algo] (results.json dicts)."""
+    from r2pac_jax.io import atomic_write_text
+    from r2pac_jax.report import SAFE_LIMIT, plot_table, results_table
+
+    md = results_table(cells, algos, families=families) + "\n\n" + caption
+    atomic_write_text(out / "table.md", md + "\n")
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["task", "family", "algo", "reward_mean", "reward_std", "cost_mean", "cost_std",
+                "safe", "seeds"])
+    for t, row in cells.items():
+        for a in algos:
+            r = row.get(a)
+            if r is None:
+                continue
+            nr, nc = r["normalized_reward"], r["normalized_cost"]
+            w.writerow([t, families.get(t, ""), a, nr["mean"], nr.get("std"), nc["mean"],
+                        nc.get("std"), bool(nc["mean"] is not None and nc["mean"] < SAFE_LIMIT),
+                        len(nr.get("per_seed", []))])
+    atomic_write_text(out / "table.csv", buf.getvalue())
+    plot_table(cells, algos, out / "table.png")
+    return md
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+
+    def log(msg):
+        print(msg, flush=True)
+
+    from r2pac_jax.agents import algo_module
+    from r2pac_jax.config import ConfigError, resolve_preset
+    from r2pac_jax.data import DatasetError, load_task_dataset
+    from r2pac_jax.data.chunks import ChunkError
+    from r2pac_jax.io import DirectoryBusy, WriteError
+    from r2pac_jax.lanes import Lanes
+    from r2pac_jax.loop import Run, TrainingDiverged, check_run
+    from r2pac_jax.tasks import EnvUnavailableError, UnknownTaskError, get_task
+
+    try:
+        args.preset, why = resolve_preset(args.preset)
+        log(why)
+        tasks = [get_task(t) for t in args.tasks.split(",") if t]
+        algos = [a for a in args.algos.split(",") if a]
+        if not tasks or not algos:
+            raise ConfigError("--tasks and --algos each need at least one name")
+        for a in algos:
+            algo_module(a)  # an unknown name is refused with the known ones
+        if args.seeds < 1 or args.episodes < 1:
+            raise ConfigError("--seeds and --episodes must be >= 1")
+        cfgs = {t.name: _configs(t, algos, args) for t in tasks}  # every config checked first
+        loaded = {}
+
+        def ds_of(task):
+            if task.name not in loaded:
+                loaded[task.name] = load_task_dataset(task, None, announce=log)
+            return loaded[task.name]
+
+        if args.estimate:
+            estimate(tasks, algos, args, ds_of, log)
+            return 0
+        out = Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise ConfigError(f"--out {out} is a file, not a directory")
+        out.mkdir(parents=True, exist_ok=True)
+        datasets = {}
+        for t in tasks:
+            ds = ds_of(t)
+            for a in algos:
+                check_run(cfgs[t.name][a], t, ds)
+            datasets[t.name] = dict(file=Path(ds.source).name, version=data_version(ds.source),
+                                    sha256=ds.digest())
+        manifest = _manifest(out, args, datasets)
+        cells: dict = {}
+        for t in tasks:
+            ds = ds_of(t)
+            cells[t.name] = {}
+            for a in algos:
+                cfg = cfgs[t.name][a]
+                d = out / t.name / a
+                log(f"== {t.name} {a} -> {d}")
+                run = Run(cfg, t, ds, d, Lanes.build(cfg, list(range(cfg.seeds))),
+                          physics=args.physics, progress=not args.no_progress, log=log,
+                          dataset_label=ds.source)
+                if (d / "results.json").exists():
+                    run._check_same_run()  # a finished cell is read back, if it is this cell
+                    cells[t.name][a] = json.loads((d / "results.json").read_text())
+                    log("   finished earlier: read back")
+                    continue
+                cells[t.name][a] = run.run(resume=(d / "checkpoints").exists())
+    except (ConfigError, DatasetError, ChunkError, UnknownTaskError, EnvUnavailableError,
+            DirectoryBusy, TrainingDiverged, WriteError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    versions = sorted({d["version"] for d in manifest["datasets"].values()})
+    files = ", ".join(f"{t}: {d['file']}" for t, d in manifest["datasets"].items()
+                      if t in cells)
+    caption = (f"Preset {args.preset}, {args.seeds} seeds, {args.episodes} evaluation episodes per "
+               f"seed, final policies; data {', '.join(versions)} ({files}).")
+    md = write_outputs(out, cells, algos, {t.name: t.family for t in tasks}, caption)
+    log("\n" + md)
+    log(f"\n{out / 'table.md'}, {out / 'table.csv'}, {out / 'table.png'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

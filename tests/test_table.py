@@ -1,0 +1,66 @@
+"""The Table-1 command (r2pac_jax/table.py) and the table's marking rules (report.results_table)."""
+import json
+
+import pytest
+
+from r2pac_jax.report import results_table
+from r2pac_jax.table import data_version, main
+
+
+def _r(reward, cost, std=0.1):
+    return dict(normalized_reward=dict(mean=reward, std=std),
+                normalized_cost=dict(mean=cost, std=std))
+
+
+def test_marks_safe_bold_best_and_second_unsafe_dagger_and_family_averages():
+    cells = {"T1": dict(a=_r(0.5, 0.5), b=_r(0.9, 2.0), c=_r(0.3, 0.2), d=_r(0.1, 0.9)),
+             "T2": dict(a=_r(0.2, 0.4), b=_r(None, None), c=_r(0.6, 2.5), d=_r(0.4, 0.1))}
+    md = results_table(cells, ["a", "b", "c", "d"], families={"T1": "nav", "T2": "nav"})
+    row1 = next(ln for ln in md.splitlines() if ln.startswith("| T1 "))
+    assert "**0.50 ± 0.10** ★" in row1 and "**0.30 ± 0.10** ☆" in row1  # best, second safe
+    assert "0.90 ± 0.10 |" in row1 and "2.00 ± 0.10 †" in row1  # unsafe: plain, dagger
+    assert row1.count("★") == 1 and row1.count("☆") == 1 and "**0.10 ± 0.10** |" in row1
+    row2 = next(ln for ln in md.splitlines() if ln.startswith("| T2 "))
+    assert "n/a" in row2 and "**0.40 ± 0.10** ★" in row2 and "2.50 ± 0.10 †" in row2
+    avg = next(ln for ln in md.splitlines() if "nav average (2 tasks)" in ln)
+    # a: (0.5 + 0.2) / 2 = 0.35 at cost 0.45, the best safe average (★), d 0.25 second (☆);
+    # b diverged on T2: no average; c's average cost (0.2 + 2.5) / 2 = 1.35: unsafe
+    assert "**0.35** ★" in avg and "**0.45**" in avg and "1.35 †" in avg
+    assert "**0.25** ☆" in avg
+    cells_b = [p.strip() for p in avg.split("|")][4:6]
+    assert cells_b == ["", ""]
+
+
+def test_data_version_reads_the_file_name():
+    assert data_version("/x/CarGoal1-generated-ppolag-v2-s0-n1671.hdf5") == "learned-v2"
+    assert data_version("/x/ReachAvoid-generated-ppolag-s0-n600.hdf5") == "learned-v1"
+    assert data_version("/x/CarGoal1-generated-s0-n600.hdf5") == "scripted-v1"
+    assert data_version("/x/OfflineCarGoal1Gymnasium-v0-100-1000.hdf5") == "dsrl"
+
+
+def test_the_table_command_runs_resumes_and_refuses_another_preset(tmp_path, data_dir, capsys):
+    out = tmp_path / "t1"
+    argv = ["--tasks", "ReachAvoid", "--algos", "bc-all-mlp,coptidice", "--seeds", "2",
+            "--preset", "quick", "--episodes", "2", "--steps", "20", "--out", str(out),
+            "--no-progress"]
+    assert main(argv) == 0
+    md = (out / "table.md").read_text()
+    assert "bc-all-mlp reward" in md and "coptidice cost" in md and "demo average" in md
+    assert "data scripted-v1" in md
+    rows = (out / "table.csv").read_text().splitlines()
+    assert rows[0].startswith("task,family,algo") and len(rows) == 3
+    assert (out / "table.png").stat().st_size > 0
+    res = json.loads((out / "ReachAvoid" / "coptidice" / "results.json").read_text())
+    assert len(res["normalized_reward"]["per_seed"]) == 2
+    capsys.readouterr()
+    assert main(argv) == 0  # everything finished: read back, nothing retrained
+    assert capsys.readouterr().out.count("finished earlier: read back") == 2
+    assert (out / "table.md").read_text() == md
+    assert main([a if a != "quick" else "paper" for a in argv]) == 2
+    assert "holds a table made with preset='quick'" in capsys.readouterr().err
+
+
+def test_unknown_algorithm_names_the_known_ones(tmp_path, capsys):
+    assert main(["--tasks", "ReachAvoid", "--algos", "cdq", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "unknown algo 'cdq'" in err and "cpq" in err and "coptidice" in err
