@@ -4,7 +4,8 @@
     python benchmarks/osrl_baselines.py --algo cpq --dataset FILE.hdf5 [--task T] [--seeds 3]
         [--steps 3000] [--episodes 20] [--out runs/osrl_baselines]
 
-Both sides at OSRL's settings for the algorithm (networks, batch, learning rates, scales) and the
+Both sides at OSRL's settings for the algorithm (networks, batch, learning rates, scales: our
+`paper` preset) and the
 same reduced number of gradient steps (stated in the table; OSRL's CPQ runs ~10 steps/s on two
 cores, so its 100k steps would take hours per seed).
 1. Speed, evaluation excluded, compile time apart. Ours: the compiled block (`--block` steps;
@@ -115,7 +116,7 @@ def scores(args, task, ds, file: str, out: Path) -> dict:
     seeds = list(range(args.seeds))
     over = dict(steps=args.steps, seeds=args.seeds, eval_episodes=args.episodes,
                 eval_every=args.steps, checkpoint_every=args.steps, threshold_every=args.block)
-    cfg = make_config(task, args.algo, "quick", over)
+    cfg = make_config(task, args.algo, "paper", over)  # OSRL's settings, fewer steps
 
     def ours():
         t0 = time.time()
@@ -216,7 +217,7 @@ def main(argv=None) -> int:
                    steps=args.steps, episodes=args.episodes, machine=machine())
     summary["scores"] = scores(args, task, ds, ds.source, out)
     summary["speed"] = _json(out / "speed.json", lambda: dict(
-        ours=[algo_speed(task, ds, args.algo, n, block_steps=args.block)
+        ours=[algo_speed(task, ds, args.algo, n, block_steps=args.block, preset="paper")
               for n in (1, args.seeds)], machine=machine()))
     from r2pac_jax.io import atomic_write_json
 

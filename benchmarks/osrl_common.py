@@ -28,14 +28,14 @@ def _json(path: Path, fn):
 
 
 def algo_speed(task, ds, algo: str, lanes: int, blocks: int = 5, block_steps: int = 1000,
-               over: dict | None = None) -> dict:
-    """steps/s of `algo`'s compiled block at its quick-preset networks, `lanes` seeds vmapped."""
+               over: dict | None = None, preset: str = "quick") -> dict:
+    """steps/s of `algo`'s compiled block at `preset`'s networks, `lanes` seeds vmapped."""
     from r2pac_jax.agents import make_agent
     from r2pac_jax.config import make_config
     from r2pac_jax.lanes import Lanes
     from r2pac_jax.loop import make_block
 
-    cfg = make_config(task, algo, "quick", dict(
+    cfg = make_config(task, algo, preset, dict(
         over or {}, steps=block_steps, threshold_every=block_steps, eval_every=block_steps,
         checkpoint_every=block_steps))
     agent = make_agent(cfg, task.obs_dim, task.act_dim)

@@ -13,7 +13,7 @@ from r2pac_jax.tasks import get_task
 
 
 def test_osrl_values_and_task_values():
-    cfg = make_config("HalfCheetahVelocity", "bcq-lag")
+    cfg = make_config("HalfCheetahVelocity", "bcq-lag", "paper")
     assert (cfg.actor_lr, cfg.critic_lr, cfg.vae_lr, cfg.phi, cfg.lmbda, cfg.beta, cfg.pid,
             cfg.batch_size, cfg.reward_scale, cfg.num_q, cfg.num_qc, cfg.sample_action_num) == \
         (1e-3, 1e-3, 1e-3, 0.05, 0.75, 0.5, (0.1, 0.003, 0.001), 512, 0.1, 2, 2, 10)

@@ -52,7 +52,7 @@ def test_data_stats_and_osrl_values(reach_avoid_data):
     starts, _ = reach_avoid_data.episode_bounds()
     assert np.isclose(float(stats.init_proportion), len(starts) / reach_avoid_data.size)
     np.testing.assert_allclose(stats.obs_std, reach_avoid_data.observations.std(0), rtol=1e-4)
-    full = make_config("CarGoal2", "coptidice")
+    full = make_config("CarGoal2", "coptidice", "paper")
     assert (full.actor_lr, full.critic_lr, full.scalar_lr, full.alpha, full.f_type,
             full.cost_ub_epsilon, full.num_nu, full.num_chi, full.batch_size,
             full.reward_scale) == (1e-4, 1e-4, 1e-4, 0.5, "softchi", 0.01, 2, 2, 512, 0.1)

@@ -18,11 +18,14 @@ def test_q_threshold_spreads_kappa_over_an_episode():
     # 2 (1 - 0.99^80) / (0.01 * 80), by hand: 1.38119...
     assert np.isclose(float(q_threshold(2.0, 0.99, 80)), 2 * (1 - 0.99**80) / 0.8)
     assert np.isclose(float(q_threshold(10.0, 0.99, 1)), 10.0)  # one step: kappa itself
-    cfg = make_config("CarGoal2", "cpq")
+    cfg = make_config("CarGoal2", "cpq", "paper")
     assert (cfg.cost_limit, cfg.episode_len) == (get_task("CarGoal2").kappa, 1000)
     assert (cfg.batch_size, cfg.reward_scale, cfg.actor_lr, cfg.critic_lr, cfg.num_q,
             cfg.qc_scalar, cfg.beta) == (512, 0.1, 1e-4, 1e-3, 2, 1.5, 0.5)
     assert make_config("CarGoal2", "cpq", "paper").steps == 100_000
+    quick = make_config("CarGoal2", "cpq")  # the CPU preset: smaller networks, fewer steps
+    assert (quick.steps, quick.batch_size, quick.a_hidden_dims, quick.vae_hidden) == \
+        (10_000, 256, (128, 128), 128)
 
 
 def test_reward_target_drops_the_bootstrap_where_the_cost_critic_says_unsafe():

@@ -57,7 +57,11 @@ class COptiDICEConfig:
 
 CONFIG = COptiDICEConfig
 _OSRL = dict(batch_size=512, reward_scale=0.1, cost_scale=1.0, discount=0.99)
-PRESETS = {"paper": dict(_OSRL, steps=100_000), "quick": dict(_OSRL, steps=20_000)}
+# paper: OSRL's values (100k steps). quick (a 2-core CPU, fixed before any v2 score): 2 x 128
+# networks, batch 256, 10k steps, ~1/8 of a paper step's arithmetic.
+PRESETS = {"paper": dict(_OSRL, steps=100_000),
+           "quick": dict(_OSRL, steps=10_000, batch_size=256, a_hidden_dims=(128, 128),
+                         c_hidden_dims=(128, 128))}
 VARIANTS = {"coptidice": {}}
 FIXED = {"chunk_len": 1}
 FIXED_WHY = {"chunk_len": "learns one-step stationary distribution ratios"}
