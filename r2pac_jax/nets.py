@@ -233,3 +233,86 @@ def vae_kl(mean, std) -> jax.Array:
     """OSRL's KL term per sample, -0.5 (1 + log std^2 - mean^2 - std^2) averaged over the
     latent: [..., Z] -> [...]."""
     return -0.5 * (1.0 + jnp.log(std**2) - mean**2 - std**2).mean(-1)
+
+
+# ---------------------------------------------------------------------------------------------
+# FISOR's networks (jaxrl5/networks of its repository): xavier-uniform MLPs, the DDPM noise model
+# on a layer-normed MLP-ResNet with learnable Fourier time features.
+
+def mish(x):
+    return x * jnp.tanh(jax.nn.softplus(x))
+
+
+class XavierMLP(nn.Module):
+    """jaxrl5's MLP: xavier-uniform Dense layers, `act` between them (and after the last with
+    `activate_final`)."""
+
+    hidden_dims: Sequence[int]
+    act: str = "relu"
+    activate_final: bool = False
+
+    @nn.compact
+    def __call__(self, x):
+        fn = mish if self.act == "mish" else nn.relu
+        for i, h in enumerate(self.hidden_dims):
+            x = nn.Dense(h, kernel_init=nn.initializers.xavier_uniform())(x)
+            if i + 1 < len(self.hidden_dims) or self.activate_final:
+                x = fn(x)
+        return x
+
+
+class XavierValue(nn.Module):
+    """jaxrl5's StateValue / StateActionValue body: x [B, i] -> [B] (ReLU MLP, final ReLU,
+    a linear output)."""
+
+    hidden_dims: Sequence[int]
+
+    @nn.compact
+    def __call__(self, x):
+        x = XavierMLP(self.hidden_dims, activate_final=True)(x)
+        return nn.Dense(1, kernel_init=nn.initializers.xavier_uniform())(x)[..., 0]
+
+
+class XavierQEnsemble(nn.Module):
+    """jaxrl5's Ensemble(StateActionValue): [B, o], [B, A] -> [num, B]."""
+
+    hidden_dims: Sequence[int]
+    num: int = 2
+
+    @nn.compact
+    def __call__(self, obs, act):
+        ens = nn.vmap(XavierValue, variable_axes={"params": 0}, split_rngs={"params": True},
+                      in_axes=None, out_axes=0, axis_size=self.num)
+        return ens(self.hidden_dims)(jnp.concatenate([obs, act], -1))
+
+
+class NoiseModel(nn.Module):
+    """FISOR's DDPM eps model: learnable Fourier features of the step (time_dim), a 2 x 128 mish
+    encoder of them, then an MLP-ResNet on [a_t, s, cond] (hidden, num_blocks blocks of
+    dropout, LayerNorm, Dense(4 hidden), mish, Dense(hidden), residual; mish; Dense(act)).
+    (s [B, o], a_t [B, A], t [B, 1] float) -> eps [B, A]."""
+
+    act_dim: int
+    hidden: int = 256
+    num_blocks: int = 3
+    dropout: float = 0.1
+    layer_norm: bool = True
+    time_dim: int = 64
+    cond_dims: Sequence[int] = (128, 128)
+
+    @nn.compact
+    def __call__(self, s, a, t, training: bool = False):
+        w = self.param("fourier", nn.initializers.normal(0.2), (self.time_dim // 2, t.shape[-1]))
+        f = 2 * jnp.pi * t @ w.T
+        cond = XavierMLP(self.cond_dims, act="mish")(jnp.concatenate([jnp.cos(f), jnp.sin(f)],
+                                                                     -1))
+        x = nn.Dense(self.hidden, kernel_init=nn.initializers.xavier_uniform())(
+            jnp.concatenate([a, s, cond], -1))
+        for _ in range(self.num_blocks):
+            r = x
+            if self.dropout > 0:
+                x = nn.Dropout(self.dropout, deterministic=not training)(x)
+            if self.layer_norm:
+                x = nn.LayerNorm()(x)
+            x = r + nn.Dense(self.hidden)(mish(nn.Dense(self.hidden * 4)(x)))
+        return nn.Dense(self.act_dim, kernel_init=nn.initializers.xavier_uniform())(mish(x))
