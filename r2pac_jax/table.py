@@ -24,7 +24,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 
 DEFAULT_ALGOS = "bc-all-mlp,cpq,coptidice,bcq-lag,r2pac"
 
