@@ -237,7 +237,8 @@ def vae_kl(mean, std) -> jax.Array:
 
 # ---------------------------------------------------------------------------------------------
 # FISOR's networks (jaxrl5/networks of its repository): xavier-uniform MLPs, the DDPM noise model
-# on a layer-normed MLP-ResNet with learnable Fourier time features.
+# on a layer-normed MLP-ResNet with learnable Fourier time features. Submodules carry jaxrl5's
+# names, so that a parameter tree trained by FISOR's own code loads here unchanged.
 
 def mish(x):
     return x * jnp.tanh(jax.nn.softplus(x))
@@ -262,14 +263,14 @@ class XavierMLP(nn.Module):
 
 
 class XavierValue(nn.Module):
-    """jaxrl5's StateValue / StateActionValue body: x [B, i] -> [B] (ReLU MLP, final ReLU,
-    a linear output)."""
+    """jaxrl5's StateActionValue body: x [B, i] -> [B] (ReLU MLP with a final ReLU, then a
+    linear output)."""
 
     hidden_dims: Sequence[int]
 
     @nn.compact
     def __call__(self, x):
-        x = XavierMLP(self.hidden_dims, activate_final=True)(x)
+        x = XavierMLP(self.hidden_dims, activate_final=True, name="MLP_0")(x)
         return nn.Dense(1, kernel_init=nn.initializers.xavier_uniform())(x)[..., 0]
 
 
@@ -283,7 +284,62 @@ class XavierQEnsemble(nn.Module):
     def __call__(self, obs, act):
         ens = nn.vmap(XavierValue, variable_axes={"params": 0}, split_rngs={"params": True},
                       in_axes=None, out_axes=0, axis_size=self.num)
-        return ens(self.hidden_dims)(jnp.concatenate([obs, act], -1))
+        return ens(self.hidden_dims, name="VmapStateActionValue_0")(
+            jnp.concatenate([obs, act], -1))
+
+
+class StateValueNet(nn.Module):
+    """jaxrl5's StateValue: obs [B, o] -> [B]."""
+
+    hidden_dims: Sequence[int]
+
+    @nn.compact
+    def __call__(self, obs):
+        x = XavierMLP(self.hidden_dims, activate_final=True, name="MLP_0")(obs)
+        return nn.Dense(1, kernel_init=nn.initializers.xavier_uniform(),
+                        name="OutputVDense")(x)[..., 0]
+
+
+class _FourierFeatures(nn.Module):
+    output_size: int
+
+    @nn.compact
+    def __call__(self, t):
+        w = self.param("kernel", nn.initializers.normal(0.2), (self.output_size // 2, t.shape[-1]))
+        f = 2 * jnp.pi * t @ w.T
+        return jnp.concatenate([jnp.cos(f), jnp.sin(f)], -1)
+
+
+class _ResNetBlock(nn.Module):
+    features: int
+    dropout: float
+    layer_norm: bool
+
+    @nn.compact
+    def __call__(self, x, training: bool):
+        r = x
+        if self.dropout > 0:
+            x = nn.Dropout(self.dropout, deterministic=not training)(x)
+        if self.layer_norm:
+            x = nn.LayerNorm()(x)
+        x = mish(nn.Dense(self.features * 4)(x))  # Dense_0, then Dense_1 (jaxrl5's order)
+        return r + nn.Dense(self.features)(x)
+
+
+class _ResNet(nn.Module):
+    hidden: int
+    num_blocks: int
+    out_dim: int
+    dropout: float
+    layer_norm: bool
+
+    @nn.compact
+    def __call__(self, x, training: bool):
+        x = nn.Dense(self.hidden, kernel_init=nn.initializers.xavier_uniform())(x)
+        for k in range(self.num_blocks):
+            x = _ResNetBlock(self.hidden, self.dropout, self.layer_norm,
+                             name=f"MLPResNetBlock_{k}")(x, training)
+        return nn.Dense(self.out_dim, kernel_init=nn.initializers.xavier_uniform())(mish(x))
 
 
 class NoiseModel(nn.Module):
@@ -302,17 +358,8 @@ class NoiseModel(nn.Module):
 
     @nn.compact
     def __call__(self, s, a, t, training: bool = False):
-        w = self.param("fourier", nn.initializers.normal(0.2), (self.time_dim // 2, t.shape[-1]))
-        f = 2 * jnp.pi * t @ w.T
-        cond = XavierMLP(self.cond_dims, act="mish")(jnp.concatenate([jnp.cos(f), jnp.sin(f)],
-                                                                     -1))
-        x = nn.Dense(self.hidden, kernel_init=nn.initializers.xavier_uniform())(
-            jnp.concatenate([a, s, cond], -1))
-        for _ in range(self.num_blocks):
-            r = x
-            if self.dropout > 0:
-                x = nn.Dropout(self.dropout, deterministic=not training)(x)
-            if self.layer_norm:
-                x = nn.LayerNorm()(x)
-            x = r + nn.Dense(self.hidden)(mish(nn.Dense(self.hidden * 4)(x)))
-        return nn.Dense(self.act_dim, kernel_init=nn.initializers.xavier_uniform())(mish(x))
+        t_ff = _FourierFeatures(self.time_dim, name="FourierFeatures_0")(t)
+        cond = XavierMLP(self.cond_dims, act="mish", name="MLP_0")(t_ff)
+        return _ResNet(self.hidden, self.num_blocks, self.act_dim, self.dropout,
+                       self.layer_norm, name="MLPResNet_0")(jnp.concatenate([a, s, cond], -1),
+                                                            training)

@@ -37,7 +37,7 @@ from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, c
 from r2pac_jax.agents.critics import expectile_loss, reversed_expectile_loss
 from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch
-from r2pac_jax.nets import NoiseModel, XavierQEnsemble, XavierValue
+from r2pac_jax.nets import NoiseModel, StateValueNet, XavierQEnsemble
 
 
 @dataclasses.dataclass(frozen=True)
@@ -161,7 +161,7 @@ class Agent(TransitionAlgorithm):
         self.actor_net = NoiseModel(act_dim, cfg.actor_hidden, cfg.actor_blocks,
                                     cfg.actor_dropout, cfg.actor_layer_norm, cfg.time_dim)
         self.q_net = XavierQEnsemble(cfg.critic_hidden_dims, cfg.num_qs)
-        self.v_net = XavierValue(cfg.critic_hidden_dims)
+        self.v_net = StateValueNet(cfg.critic_hidden_dims)
         lr = optax.cosine_decay_schedule(cfg.actor_lr, cfg.decay_steps)
         self.tx = dict(actor=optax.adamw(lr, weight_decay=0.0), q=optax.adam(cfg.critic_lr),
                        qh=optax.adam(cfg.critic_lr), v=optax.adam(cfg.value_lr),
