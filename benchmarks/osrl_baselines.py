@@ -69,6 +69,34 @@ def bcq_lag_params(npz_files: list[Path]) -> dict:
     return jax.tree_util.tree_map(lambda *x: jnp.asarray(np.stack(x)), *trees)
 
 
+def fisor_params(npz_files: list[Path]) -> dict:
+    """FISOR's EMA actor and target Q_h ("actor/...", "qh/..." flattened in FISOR's module
+    names) -> our policy params stacked over seeds [L, ...]."""
+    from flax import traverse_util
+
+    trees = []
+    for f in npz_files:
+        z = np.load(f)
+        tree = {}
+        for part in ("actor", "qh"):
+            flat = {tuple(k.split("/")[1:]): z[k] for k in z.files if k.startswith(part + "/")}
+            tree[part] = {"params": traverse_util.unflatten_dict(flat)}
+        trees.append(tree)
+    return jax.tree_util.tree_map(lambda *x: jnp.asarray(np.stack(x)), *trees)
+
+
+def fisor_probe(agent, pp, npz: Path) -> dict:
+    """Our FISOR networks on the peer's probe inputs, with the peer's seed-0 parameters: the
+    largest absolute difference from FISOR's own outputs (eps model, Q_h ensemble)."""
+    z = np.load(npz)
+    p0 = jax.tree_util.tree_map(lambda x: x[0], pp)
+    eps = agent.actor_net.apply(p0["actor"], z["probe/obs"], z["probe/x"], z["probe/t"])
+    qh = agent.q_net.apply(p0["qh"], z["probe/obs"], z["probe/x"])
+    return dict(eps=float(np.abs(np.asarray(eps) - z["probe/eps"]).max()),
+                qh=float(np.abs(np.asarray(qh) - z["probe/qh"]).max()),
+                eps_scale=float(np.abs(z["probe/eps"]).max()))
+
+
 def _q_peer(task) -> list[str]:
     return ["--cost-limit", str(task.kappa), "--episode-len", str(task.episode_len)]
 
@@ -80,6 +108,10 @@ PEERS = {
                 bcq_lag_params),
     "coptidice": ("osrl_q_peer.py", lambda task: ["--algo", "coptidice", *_q_peer(task)],
                   cpq_params),
+    # FISOR's own code, in its own virtualenv (--peer-python) from a checkout (--fisor-src)
+    "fisor": ("fisor_peer.py", lambda task: [
+        "--episode-len", str(task.episode_len), "--r-max", str(task.r_max), "--r-min",
+        str(task.r_min), "--cost-limit", str(task.kappa)], fisor_params),
 }
 
 
@@ -89,8 +121,12 @@ def peer(args, task, file: str, seed: int, out: Path) -> dict:
         return json.loads(done.read_text())
     out.parent.mkdir(parents=True, exist_ok=True)
     script, extra, _ = PEERS[args.algo]
-    cmd = [args.osrl_python, str(HERE / "peers" / script), file, *extra(task), "--seed",
-           str(seed), "--steps", str(args.steps), "--threads", "2", "--out", str(out)]
+    cmd = [args.peer_python, str(HERE / "peers" / script), file, *extra(task), "--seed",
+           str(seed), "--steps", str(args.steps), "--out", str(out)]
+    if args.algo == "fisor":
+        cmd += ["--fisor-src", args.fisor_src]
+    else:
+        cmd += ["--threads", "2"]
     env = dict(os.environ, WANDB_MODE="disabled", PYTHONNOUSERSITE="1")
     subprocess.run(cmd, check=True, env=env, capture_output=True, text=True)
     return json.loads(done.read_text())
@@ -131,10 +167,13 @@ def scores(args, task, ds, file: str, out: Path) -> dict:
         agent = make_agent(cfg, task.obs_dim, task.act_dim)
         pp = PEERS[args.algo][2]([out / "osrl" / f"s{s}.npz" for s in seeds])
         ev = LaneEvaluator(agent.act, task, args.episodes)(pp, eval_keys(seeds, cfg.total_steps))
-        return dict(normalized_reward=_stats(ev["normalized_reward"]),
-                    normalized_cost=_stats(ev["normalized_cost"]),
-                    train_steps_per_s=[i["steps_per_s"] for i in infos],
-                    curves=[i["curve"] for i in infos])
+        res = dict(normalized_reward=_stats(ev["normalized_reward"]),
+                   normalized_cost=_stats(ev["normalized_cost"]),
+                   train_steps_per_s=[i["steps_per_s"] for i in infos],
+                   curves=[i["curve"] for i in infos])
+        if args.algo == "fisor":
+            res["probe_max_abs_diff"] = fisor_probe(agent, pp, out / "osrl" / "s0.npz")
+        return res
 
     mine = _json(out / "ours.json", ours)
     osrl = _json(out / "osrl.json", theirs)
@@ -146,7 +185,8 @@ def scores(args, task, ds, file: str, out: Path) -> dict:
 def write_table(s: dict, out: Path) -> str:
     from r2pac_jax.io import atomic_write_text
 
-    lines = [f"OSRL {s['algo']} vs r2pac-jax `{s['algo']}` on {s['task']} "
+    them = "FISOR's code" if s["algo"] == "fisor" else "OSRL"
+    lines = [f"{them} {s['algo']} vs r2pac-jax `{s['algo']}` on {s['task']} "
              f"({Path(s['dataset']).name}); {s['steps']} gradient steps each side, "
              f"{s['seeds']} seeds, {s['episodes']} episodes per seed in our environment; "
              f"{s['machine']['cpus']} CPUs, jax {s['machine']['jax']}, {s['machine']['date']}", ""]
@@ -154,7 +194,7 @@ def write_table(s: dict, out: Path) -> str:
     if sp and sc:
         theirs = float(np.median(sc["osrl"]["train_steps_per_s"]))
         lines += ["| trainer | steps/s | seed-steps/s | vs OSRL |", "|---|---|---|---|",
-                  f"| OSRL (torch 2 threads, bulk batches; median of the seeds' runs) | "
+                  f"| {them} (2 threads, bulk batches; median of the seeds' runs) | "
                   f"{theirs:.1f} | {theirs:.1f} | 1.00 |"]
         for r in sp["ours"]:
             lines.append(f"| ours, {r['lanes']} seed(s) vmapped (compile {r['compile_s']:.1f} s) "
@@ -167,8 +207,13 @@ def write_table(s: dict, out: Path) -> str:
         def f(x):
             return f"{x['mean']:.2f} ± {x['std']:.2f}"
 
+        if "probe_max_abs_diff" in o:
+            d = o["probe_max_abs_diff"]
+            lines += [f"Our networks on FISOR's parameters, 64 fixed inputs: max |diff| eps "
+                      f"{d['eps']:.1e} (outputs up to {d['eps_scale']:.2f}), Q_h {d['qh']:.1e}.",
+                      ""]
         lines += ["| side | reward | cost | cost per seed |", "|---|---|---|---|",
-                  f"| OSRL | {f(o['normalized_reward'])} | {f(o['normalized_cost'])} | "
+                  f"| {them} | {f(o['normalized_reward'])} | {f(o['normalized_cost'])} | "
                   f"{' '.join(f'{x:.2f}' for x in o['normalized_cost']['per_seed'])} |",
                   f"| ours | {f(m['normalized_reward'])} | {f(m['normalized_cost'])} | "
                   f"{' '.join(f'{x:.2f}' for x in m['normalized_cost']['per_seed'])} |", "",
@@ -186,16 +231,22 @@ def main(argv=None) -> int:
     ap.add_argument("--dataset", required=True, help="a DSRL-format file (its name is captioned)")
     ap.add_argument("--task", default=None, help="default: read off the file's name")
     ap.add_argument("--osrl-venv", default=str(HERE.parent.parent / "osrl-venv" / "venv"))
+    ap.add_argument("--fisor-venv", default=str(HERE.parent.parent / "fisor-venv"),
+                    help="FISOR's side virtualenv (its jax; how to make it: benchmarks/RESULTS.md)")
+    ap.add_argument("--fisor-src", default=str(HERE.parent.parent / "fisor-src"),
+                    help="a checkout of FISOR (its jaxrl5 package is imported from there)")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--block", type=int, default=500, help="our compiled block (steps)")
     ap.add_argument("--episodes", type=int, default=20)
     ap.add_argument("--out", default="runs/osrl_baselines")
     args = ap.parse_args(argv)
-    args.osrl_python = str(Path(args.osrl_venv) / "bin" / "python")
-    if not Path(args.osrl_python).exists():
-        print(f"error: no OSRL virtualenv at {args.osrl_venv}; make it with "
-              f"bash benchmarks/peers/install_osrl.sh {args.osrl_venv}", file=sys.stderr)
+    venv = args.fisor_venv if args.algo == "fisor" else args.osrl_venv
+    args.peer_python = str(Path(venv) / "bin" / "python")
+    if not Path(args.peer_python).exists():
+        how = ("the FISOR peer recipe in benchmarks/RESULTS.md" if args.algo == "fisor"
+               else f"bash benchmarks/peers/install_osrl.sh {venv}")
+        print(f"error: no peer virtualenv at {venv}; make it with {how}", file=sys.stderr)
         return 2
     if args.steps % args.block:
         print(f"error: --steps {args.steps} must be a multiple of --block {args.block}",
