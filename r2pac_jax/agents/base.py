@@ -166,6 +166,42 @@ def soft_update(target, online, tau):
     return jax.tree_util.tree_map(lambda t, o: (1.0 - tau) * t + tau * o, target, online)
 
 
+def optimizer_step(tx: dict, name: str, params: dict, opt: dict, loss_fn):
+    """One step of network `name` on loss_fn(params[name]) -> (loss, aux):
+    -> (params, opt, loss, aux) with only that network and its optimiser state changed."""
+    import optax
+
+    (loss, aux), g = jax.value_and_grad(loss_fn, has_aux=True)(params[name])
+    upd, opt_n = tx[name].update(g, opt[name], params[name])
+    return {**params, name: optax.apply_updates(params[name], upd)}, {**opt, name: opt_n}, \
+        loss, aux
+
+
+def cost_limit_task_values(spec) -> dict:
+    """The registry values of the OSRL ports: their cost limit is the task's kappa, their
+    threshold's horizon its episode length."""
+    return dict(cost_limit=float(spec.kappa), episode_len=int(spec.episode_len))
+
+
+def check_lane_hparams(values: dict, hparams, positive=()) -> None:
+    """Per-lane values of vmappable scalars: known names, finite, >= 0 (> 0 for `positive`)."""
+    from r2pac_jax.config import check_range
+
+    unknown = set(values) - set(hparams)
+    if unknown:
+        raise ConfigError(f"cannot vary {sorted(unknown)} across lanes; vmappable "
+                          f"hyperparameters are {list(hparams)}")
+    for k, v in values.items():
+        check_range(k, v, 0, low_open=k in positive)
+
+
+def check_counts(c, names) -> None:
+    """Integer config values that must be >= 1."""
+    for k in names:
+        if getattr(c, k) < 1:
+            raise ConfigError(f"{k} must be >= 1, got {getattr(c, k)}")
+
+
 def no_hparams(values: dict) -> None:
     """check_hparams of modules without vmappable scalars."""
     if values:

@@ -27,7 +27,9 @@ import optax
 from flax import struct
 
 from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, check_choice,
-                                   check_obs, check_positive, check_sizes, soft_update)
+                                   check_counts, check_lane_hparams, check_obs, check_positive,
+                                   check_sizes, cost_limit_task_values, optimizer_step,
+                                   soft_update)
 from r2pac_jax.agents.constraints import pid_multiplier, q_threshold
 from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch
@@ -69,17 +71,11 @@ HPARAMS = ("cost_limit",)
 phases = actor_only
 
 
-def task_values(spec) -> dict:
-    return dict(cost_limit=float(spec.kappa), episode_len=int(spec.episode_len))
+task_values = cost_limit_task_values
 
 
 def check_hparams(values: dict) -> None:
-    unknown = set(values) - set(HPARAMS)
-    if unknown:
-        raise ConfigError(f"cannot vary {sorted(unknown)} across lanes; vmappable "
-                          f"hyperparameters are {list(HPARAMS)}")
-    if "cost_limit" in values:
-        check_range("cost_limit", values["cost_limit"], 0)
+    check_lane_hparams(values, HPARAMS)
 
 
 def validate(c: BCQLConfig) -> None:
@@ -95,9 +91,7 @@ def validate(c: BCQLConfig) -> None:
     check_range("pid", c.pid, 0)
     check_sizes("a_hidden_dims", c.a_hidden_dims)
     check_sizes("c_hidden_dims", c.c_hidden_dims)
-    for k in ("vae_hidden", "sample_action_num", "num_q", "num_qc", "episode_len"):
-        if getattr(c, k) < 1:
-            raise ConfigError(f"{k} must be >= 1, got {getattr(c, k)}")
+    check_counts(c, ("vae_hidden", "sample_action_num", "num_q", "num_qc", "episode_len"))
     check_choice("done_rule", c.done_rule, DONE_RULES)
 
 
@@ -165,10 +159,7 @@ class Agent(TransitionAlgorithm):
         return soft_clipped_double_q(q1, q2, self.cfg.lmbda).reshape(bs, -1).max(1)
 
     def _step(self, name, params, opt, loss_fn):
-        (loss, aux), g = jax.value_and_grad(loss_fn, has_aux=True)(params[name])
-        upd, opt_n = self.tx[name].update(g, opt[name], params[name])
-        return {**params, name: optax.apply_updates(params[name], upd)}, {**opt, name: opt_n}, \
-            loss, aux
+        return optimizer_step(self.tx, name, params, opt, loss_fn)
 
     def update(self, state: BCQLState, b: TransitionBatch, hp: dict, phase: str):
         """One BCQ-L step on a batch of B transitions (obs [B, o], actions [B, A])."""

@@ -30,9 +30,10 @@ import optax
 from flax import struct
 
 from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, check_choice,
-                                   check_obs, check_positive, check_sizes)
+                                   check_counts, check_lane_hparams, check_obs, check_positive,
+                                   check_sizes, cost_limit_task_values)
 from r2pac_jax.agents.constraints import q_threshold
-from r2pac_jax.config import ConfigError, check_range
+from r2pac_jax.config import check_range
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch, TransitionData
 from r2pac_jax.nets import SquashedGaussianActor, TorchQEnsemble
 
@@ -70,19 +71,11 @@ phases = actor_only
 F_TYPES = ("softchi", "chi2", "kl")
 
 
-def task_values(spec) -> dict:
-    return dict(cost_limit=float(spec.kappa), episode_len=int(spec.episode_len))
+task_values = cost_limit_task_values
 
 
 def check_hparams(values: dict) -> None:
-    unknown = set(values) - set(HPARAMS)
-    if unknown:
-        raise ConfigError(f"cannot vary {sorted(unknown)} across lanes; vmappable "
-                          f"hyperparameters are {list(HPARAMS)}")
-    if "cost_limit" in values:
-        check_range("cost_limit", values["cost_limit"], 0)
-    if "alpha" in values:
-        check_range("alpha", values["alpha"], 0, low_open=True)
+    check_lane_hparams(values, HPARAMS, positive=("alpha",))
 
 
 def validate(c: COptiDICEConfig) -> None:
@@ -93,9 +86,7 @@ def validate(c: COptiDICEConfig) -> None:
     check_range("cost_limit", c.cost_limit, 0)
     check_sizes("a_hidden_dims", c.a_hidden_dims)
     check_sizes("c_hidden_dims", c.c_hidden_dims)
-    for k in ("num_nu", "num_chi", "episode_len"):
-        if getattr(c, k) < 1:
-            raise ConfigError(f"{k} must be >= 1, got {getattr(c, k)}")
+    check_counts(c, ("num_nu", "num_chi", "episode_len"))
     check_choice("f_type", c.f_type, F_TYPES)
     check_choice("done_rule", c.done_rule, DONE_RULES)
 

@@ -33,7 +33,8 @@ from flax import struct
 
 from r2pac_jax.agents import diffusion
 from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, check_choice,
-                                   check_obs, check_positive, check_sizes, soft_update)
+                                   check_counts, check_lane_hparams, check_obs, check_positive,
+                                   check_sizes, optimizer_step, soft_update)
 from r2pac_jax.agents.critics import expectile_loss, reversed_expectile_loss
 from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch
@@ -93,12 +94,7 @@ def task_values(spec) -> dict:
 
 
 def check_hparams(values: dict) -> None:
-    unknown = set(values) - set(HPARAMS)
-    if unknown:
-        raise ConfigError(f"cannot vary {sorted(unknown)} across lanes; vmappable "
-                          f"hyperparameters are {list(HPARAMS)}")
-    for k, v in values.items():
-        check_range(k, v, 0)
+    check_lane_hparams(values, HPARAMS)
 
 
 def validate(c: FISORConfig) -> None:
@@ -111,10 +107,8 @@ def validate(c: FISORConfig) -> None:
     check_range("reward_temperature", c.reward_temperature, 0)
     check_range("cost_temperature", c.cost_temperature, 0)
     check_sizes("critic_hidden_dims", c.critic_hidden_dims)
-    for k in ("num_candidates", "diffusion_steps", "actor_hidden", "actor_blocks", "num_qs",
-              "critic_batch", "time_dim", "episode_len", "decay_steps"):
-        if getattr(c, k) < 1:
-            raise ConfigError(f"{k} must be >= 1, got {getattr(c, k)}")
+    check_counts(c, ("num_candidates", "diffusion_steps", "actor_hidden", "actor_blocks",
+                     "num_qs", "critic_batch", "time_dim", "episode_len", "decay_steps"))
     if c.r_max <= c.r_min:
         raise ConfigError(f"r_max ({c.r_max}) must exceed r_min ({c.r_min})")
     check_choice("done_rule", c.done_rule, DONE_RULES)
@@ -190,10 +184,7 @@ class Agent(TransitionAlgorithm):
                           step=jnp.zeros((), jnp.int32), key=k_state)
 
     def _step(self, name, params, opt, loss_fn):
-        (loss, aux), g = jax.value_and_grad(loss_fn, has_aux=True)(params[name])
-        upd, opt_n = self.tx[name].update(g, opt[name], params[name])
-        return {**params, name: optax.apply_updates(params[name], upd)}, {**opt, name: opt_n}, \
-            loss, aux
+        return optimizer_step(self.tx, name, params, opt, loss_fn)
 
     def _actor_step(self, p, opt, tgt, b: TransitionBatch, hp, key):
         cfg = self.cfg
