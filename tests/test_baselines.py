@@ -16,7 +16,9 @@ from r2pac_jax.tasks import get_task
 BASELINES = ["cpq", "bcq-lag", "coptidice", "fisor"]
 
 
-@pytest.mark.parametrize("algo", BASELINES)
+# the default suite runs the cheapest one; the others (25-50 s of compilation each) are slow
+@pytest.mark.parametrize("algo", [pytest.param(a, marks=() if a == "coptidice" else
+                                               pytest.mark.slow) for a in BASELINES])
 def test_vmapped_seeds_equal_separate_runs(algo, reach_avoid_data):
     task = get_task("ReachAvoid")
     cfg = tiny_config(algo, steps=20)
