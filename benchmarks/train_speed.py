@@ -14,14 +14,11 @@ import platform
 import time
 
 import jax
-import numpy as np
 
 from r2pac_jax.config import make_config
 from r2pac_jax.data import load_task_dataset
 from r2pac_jax.tasks import get_task
-from r2pac_jax.agents import make_agent
-from r2pac_jax.lanes import Lanes
-from r2pac_jax.loop import make_block, make_data
+from r2pac_jax.loop import time_block
 
 
 def measure(preset: str, seeds: int, phase: str, blocks: int, block_steps: int, overrides=None):
@@ -31,26 +28,11 @@ def measure(preset: str, seeds: int, phase: str, blocks: int, block_steps: int, 
                                                   checkpoint_every=block_steps, steps=block_steps,
                                                   **(overrides or {})))
     ds = load_task_dataset(task, announce=lambda m: None)
-    data = make_data(cfg, task, ds)
-    agent = make_agent(cfg, task.obs_dim, task.act_dim)
-    lanes = Lanes.build(cfg, list(range(seeds)))
-    init = jax.jit(jax.vmap(agent.init))
-    state = init(jax.numpy.stack([jax.random.PRNGKey(s) for s in range(seeds)]), lanes.hp)
-    fn = jax.jit(jax.vmap(make_block(agent, phase), in_axes=(0, 0, None)))
-    t0 = time.perf_counter()
-    compiled = fn.lower(state, lanes.hp, data).compile()
-    compile_s = time.perf_counter() - t0
-    state, m = compiled(state, lanes.hp, data)  # warm-up
-    jax.block_until_ready(state)
-    times = []
-    for _ in range(blocks):
-        t0 = time.perf_counter()
-        state, m = compiled(state, lanes.hp, data)
-        jax.block_until_ready(state)
-        times.append(time.perf_counter() - t0)
-    dt = float(np.median(times))
+    r = time_block(cfg, task, ds, seeds, blocks, phase)
+    steps_per_s, seed_steps_per_s, compile_s = r["steps_per_s"], r["seed_steps_per_s"], \
+        r["compile_s"]
     return dict(preset=preset, phase=phase, seeds=seeds, block_steps=block_steps,
-                steps_per_s=block_steps / dt, seed_steps_per_s=seeds * block_steps / dt,
+                steps_per_s=steps_per_s, seed_steps_per_s=seed_steps_per_s,
                 compile_s=compile_s, hidden=list(cfg.hidden_dims), batch=cfg.batch_size,
                 backend=jax.default_backend(), device=str(jax.devices()[0]),
                 machine=platform.machine(), cpus=__import__("os").cpu_count(),

@@ -224,6 +224,12 @@ class VAE(nn.Module):
         return self.decode(obs, mean + std * jax.random.normal(key, std.shape)), mean, std
 
 
+def vae_loss(vae_net: "VAE", params, obs, act, key, beta):
+    """OSRL's VAE objective: MSE reconstruction + beta x the mean KL (BCQ-L, CPQ): -> []."""
+    recon, mean, std = vae_net.apply(params, obs, act, key)
+    return jnp.mean((recon - act) ** 2) + beta * vae_kl(mean, std).mean()
+
+
 def vae_sample_latent(key, batch: int, latent_dim: int) -> jax.Array:
     """OSRL's `VAE.decode` without z: z ~ N(0, 1) clamped to [-0.5, 0.5], [batch, latent_dim]."""
     return jnp.clip(jax.random.normal(key, (batch, latent_dim)), -0.5, 0.5)

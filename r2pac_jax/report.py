@@ -237,8 +237,7 @@ def setting_line(cfg, task) -> str:
 
 def verdict_line(results: dict) -> str:
     """Which agents were safe and which safe agent had the best reward, from the results."""
-    safe = {a: r["normalized_reward"]["mean"] for a, r in results.items()
-            if r["normalized_cost"]["mean"] < SAFE_LIMIT}
+    safe = {a: r["normalized_reward"]["mean"] for a, r in results.items() if _is_safe(r)}
     if not safe:
         return "No agent was safe (normalised cost < 1) on this data."
     best = max(safe, key=safe.get)

@@ -21,7 +21,6 @@ import io
 import json
 import re
 import sys
-import time
 from pathlib import Path
 
 
@@ -113,27 +112,13 @@ def _manifest(out: Path, args, datasets: dict) -> dict:
 def estimate(tasks, algos, args, ds_of, log) -> float:
     """Seconds of training for the whole table, from one timed block per algorithm on the first
     task (evaluation excluded; the environment steps of 2 x episodes x seeds come on top)."""
-    import jax
-
-    from r2pac_jax.agents import make_agent
-    from r2pac_jax.lanes import Lanes
-    from r2pac_jax.loop import make_block
+    from r2pac_jax.loop import time_block
 
     task = tasks[0]
     ds = ds_of(task)
     total = 0.0
     for a, cfg in _configs(task, algos, args).items():
-        agent = make_agent(cfg, task.obs_dim, task.act_dim)
-        data = agent.make_data(task, ds)
-        ln = Lanes.build(cfg, list(range(cfg.seeds)))
-        state = jax.jit(jax.vmap(agent.init))(ln.init_keys(), ln.hp)
-        fn = jax.jit(jax.vmap(make_block(agent, cfg.phases[0]), in_axes=(0, 0, None)))
-        state, _ = fn(state, ln.hp, data)
-        jax.block_until_ready(state)
-        t0 = time.perf_counter()
-        state, _ = fn(state, ln.hp, data)
-        jax.block_until_ready(state)
-        per_step = (time.perf_counter() - t0) / cfg.threshold_every
+        per_step = 1.0 / time_block(cfg, task, ds, cfg.seeds, blocks=1)["steps_per_s"]
         secs = per_step * cfg.total_steps * len(tasks)
         log(f"{a}: {1 / per_step:.1f} steps/s ({cfg.seeds} seeds vmapped) x {cfg.total_steps} "
             f"steps x {len(tasks)} task(s) ~ {secs / 60:.1f} min")

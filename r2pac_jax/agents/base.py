@@ -88,6 +88,13 @@ def check_act(obs: jax.Array, action: jax.Array, obs_dim: int, act_dim: int) -> 
     return action
 
 
+def check_dataset_sizes(task: TaskSpec, ds: Dataset) -> None:
+    """ConfigError unless the dataset's observation and action sizes are the task's."""
+    if ds.obs_dim != task.obs_dim or ds.act_dim != task.act_dim:
+        raise ConfigError(f"dataset {ds.source} has obs/act sizes {ds.obs_dim}/{ds.act_dim}, "
+                          f"task {task.name} needs {task.obs_dim}/{task.act_dim}")
+
+
 class ChunkAlgorithm:
     """Base of algorithms trained on `data.chunks` (h = cfg.chunk_len; one-step ones pin h = 1).
 
@@ -114,9 +121,7 @@ class ChunkAlgorithm:
         return keep
 
     def check_data(self, task: TaskSpec, ds: Dataset) -> None:
-        if ds.obs_dim != task.obs_dim or ds.act_dim != task.act_dim:
-            raise ConfigError(f"dataset {ds.source} has obs/act sizes {ds.obs_dim}/{ds.act_dim}, "
-                              f"task {task.name} needs {task.obs_dim}/{task.act_dim}")
+        check_dataset_sizes(task, ds)
         self.keep_episodes(task, ds)
         chunks.check_chunk_len(ds, self.cfg.chunk_len)
 
@@ -142,9 +147,7 @@ class TransitionAlgorithm(ChunkAlgorithm):
     says otherwise); chunk_len is pinned to 1 by their modules."""
 
     def check_data(self, task: TaskSpec, ds: Dataset) -> None:
-        if ds.obs_dim != task.obs_dim or ds.act_dim != task.act_dim:
-            raise ConfigError(f"dataset {ds.source} has obs/act sizes {ds.obs_dim}/{ds.act_dim}, "
-                              f"task {task.name} needs {task.obs_dim}/{task.act_dim}")
+        check_dataset_sizes(task, ds)
         self.keep_episodes(task, ds)
 
     def make_data(self, task: TaskSpec, ds: Dataset) -> transitions.TransitionData:
@@ -175,6 +178,15 @@ def optimizer_step(tx: dict, name: str, params: dict, opt: dict, loss_fn):
     upd, opt_n = tx[name].update(g, opt[name], params[name])
     return {**params, name: optax.apply_updates(params[name], upd)}, {**opt, name: opt_n}, \
         loss, aux
+
+
+def osrl_presets(**quick) -> dict:
+    """Presets of the OSRL ports: `paper` = OSRL's training values (batch 512, reward scale 0.1,
+    cost scale 1, gamma 0.99, 100k steps); `quick` = the same with 10k steps, batch 256 and the
+    module's smaller networks (`quick`), fixed for the CPU before any v2 score."""
+    osrl = dict(batch_size=512, reward_scale=0.1, cost_scale=1.0, discount=0.99)
+    return {"paper": dict(osrl, steps=100_000),
+            "quick": dict(osrl, steps=10_000, batch_size=256, **quick)}
 
 
 def cost_limit_task_values(spec) -> dict:

@@ -28,12 +28,12 @@ from flax import struct
 
 from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, check_choice,
                                    check_counts, check_lane_hparams, check_obs, check_positive,
-                                   check_sizes, cost_limit_task_values, optimizer_step,
+                                   check_sizes, cost_limit_task_values, optimizer_step, osrl_presets,
                                    soft_update)
 from r2pac_jax.agents.constraints import pid_multiplier, q_threshold
 from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch
-from r2pac_jax.nets import VAE, TorchMLP, TorchQEnsemble, vae_kl, vae_sample_latent
+from r2pac_jax.nets import VAE, TorchMLP, TorchQEnsemble, vae_loss, vae_sample_latent
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,12 +58,8 @@ class BCQLConfig:
 
 
 CONFIG = BCQLConfig
-_OSRL = dict(batch_size=512, reward_scale=0.1, cost_scale=1.0, discount=0.99)
-# paper: OSRL's values (100k steps). quick (a 2-core CPU, fixed before any v2 score): 2 x 128
-# networks and VAE, batch 256, 10k steps, ~1/8 of a paper step's arithmetic.
-PRESETS = {"paper": dict(_OSRL, steps=100_000),
-           "quick": dict(_OSRL, steps=10_000, batch_size=256, a_hidden_dims=(128, 128),
-                         c_hidden_dims=(128, 128), vae_hidden=128)}
+# paper: OSRL's values; quick: 2 x 128 networks and VAE (agents/base.py: osrl_presets)
+PRESETS = osrl_presets(a_hidden_dims=(128, 128), c_hidden_dims=(128, 128), vae_hidden=128)
 VARIANTS = {"bcq-lag": {}}
 FIXED = {"chunk_len": 1}
 FIXED_WHY = {"chunk_len": "learns one-step critics"}
@@ -170,11 +166,8 @@ class Agent(TransitionAlgorithm):
         p, opt, tgt = state.params, state.opt, state.target
         bs = b.observations.shape[0]
 
-        def vae_loss(vp):
-            recon, mean, std = self.vae_net.apply(vp, b.observations, b.actions, k_vae)
-            return jnp.mean((recon - b.actions) ** 2) + cfg.beta * vae_kl(mean, std).mean(), ()
-
-        p, opt, l_vae, _ = self._step("vae", p, opt, vae_loss)
+        p, opt, l_vae, _ = self._step("vae", p, opt, lambda vp: (vae_loss(
+            self.vae_net, vp, b.observations, b.actions, k_vae, cfg.beta), ()))
         # s' repeated per sample, row-major by state (torch.repeat_interleave)
         obs_rep = jnp.repeat(b.next_observations, n, axis=0)
 

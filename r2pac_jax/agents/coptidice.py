@@ -31,7 +31,7 @@ from flax import struct
 
 from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, check_choice,
                                    check_counts, check_lane_hparams, check_obs, check_positive,
-                                   check_sizes, cost_limit_task_values)
+                                   check_sizes, cost_limit_task_values, osrl_presets)
 from r2pac_jax.agents.constraints import q_threshold
 from r2pac_jax.config import check_range
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch, TransitionData
@@ -57,12 +57,8 @@ class COptiDICEConfig:
 
 
 CONFIG = COptiDICEConfig
-_OSRL = dict(batch_size=512, reward_scale=0.1, cost_scale=1.0, discount=0.99)
-# paper: OSRL's values (100k steps). quick (a 2-core CPU, fixed before any v2 score): 2 x 128
-# networks, batch 256, 10k steps, ~1/8 of a paper step's arithmetic.
-PRESETS = {"paper": dict(_OSRL, steps=100_000),
-           "quick": dict(_OSRL, steps=10_000, batch_size=256, a_hidden_dims=(128, 128),
-                         c_hidden_dims=(128, 128))}
+# paper: OSRL's values; quick: 2 x 128 networks (agents/base.py: osrl_presets)
+PRESETS = osrl_presets(a_hidden_dims=(128, 128), c_hidden_dims=(128, 128))
 VARIANTS = {"coptidice": {}}
 FIXED = {"chunk_len": 1}
 FIXED_WHY = {"chunk_len": "learns one-step stationary distribution ratios"}
