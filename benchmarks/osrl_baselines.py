@@ -97,6 +97,76 @@ def fisor_probe(agent, pp, npz: Path) -> dict:
                 eps_scale=float(np.abs(z["probe/eps"]).max()))
 
 
+_CDT_NAMES = {"return_emb": "return_emb", "cost_emb": "cost_emb", "state_emb": "state_emb",
+              "action_emb": "action_emb", "emb_norm": "emb_norm", "out_norm": "out_norm",
+              "action_head.mu": "mu", "action_head.log_std": "log_std",
+              "cost_pred_head": "cost_pred", "state_pred_head": "state_pred"}
+
+
+def cdt_model(z) -> dict:
+    """OSRL's CDT state_dict ("sd/NAME" in the peer's npz) -> our DecisionTransformer params."""
+    sd = {k[3:]: z[k] for k in z.files if k.startswith("sd/")}
+    p: dict = {"timestep_emb": {"embedding": sd["timestep_emb.weight"]}}
+
+    def layer(torch_name):
+        if torch_name.endswith("norm") or ".norm" in torch_name:
+            return {"scale": sd[torch_name + ".weight"], "bias": sd[torch_name + ".bias"]}
+        return {"kernel": sd[torch_name + ".weight"].T, "bias": sd[torch_name + ".bias"]}
+
+    for t_name, name in _CDT_NAMES.items():
+        p[name] = layer(t_name)
+    i = 0
+    while f"blocks.{i}.norm1.weight" in sd:
+        b = f"blocks.{i}."
+        p[f"block_{i}"] = {
+            "norm1": layer(b + "norm1"), "norm2": layer(b + "norm2"),
+            "mlp_0": layer(b + "mlp.0"), "mlp_2": layer(b + "mlp.2"),
+            "attention": {"in_proj_kernel": sd[b + "attention.in_proj_weight"].T,
+                          "in_proj_bias": sd[b + "attention.in_proj_bias"],
+                          "out_proj": layer(b + "attention.out_proj")}}
+        i += 1
+    return {"params": p}
+
+
+def cdt_params(npz_files: list[Path], targets: tuple[float, float]) -> dict:
+    """The peers' CDT models with our evaluation targets (return, cost) -> policy params [L]."""
+    trees = [{"model": cdt_model(np.load(f)), "target_return": np.float32(targets[0]),
+              "target_cost": np.float32(targets[1])} for f in npz_files]
+    return jax.tree_util.tree_map(lambda *x: jnp.asarray(np.stack(x)), *trees)
+
+
+def cdt_probe(agent, pp, npz: Path) -> dict:
+    """Our transformer on the peer's probe windows with its seed-0 parameters: the largest
+    absolute differences from OSRL's own outputs (action mean, log-std, cost log-probs)."""
+    z = np.load(npz)
+    p0 = jax.tree_util.tree_map(lambda x: x[0], pp)
+    mu, log_std, cost_logp, _ = agent.net.apply(
+        p0["model"], z["probe/states"], z["probe/actions"], z["probe/returns"], z["probe/costs"],
+        z["probe/time_steps"].astype(np.int32))
+    return dict(mu=float(np.abs(np.asarray(mu) - z["probe/mu"]).max()),
+                log_std=float(np.abs(np.asarray(log_std) - z["probe/log_std"]).max()),
+                cost_logp=float(np.abs(np.asarray(cost_logp) - z["probe/cost_logp"]).max()),
+                mu_scale=float(np.abs(z["probe/mu"]).max()))
+
+
+def cdt_peer_config(cfg, task, ds, path: Path) -> Path:
+    """The values the CDT peer trains with: our config's, augmentation constants in the data's
+    return units (agents/cdt.py: augmentation_values)."""
+    from r2pac_jax.agents.cdt import augmentation_values
+    from r2pac_jax.io import atomic_write_json
+
+    ret, _ = ds.episode_sums()
+    aug = augmentation_values(cfg, ret)
+    keys = ("seq_len", "embedding_dim", "num_layers", "num_heads", "attention_dropout",
+            "residual_dropout", "embedding_dropout", "lr", "weight_decay", "clip_grad",
+            "lr_warmup_steps", "reward_scale", "cost_scale", "batch_size", "loss_cost_weight",
+            "loss_state_weight", "init_temperature", "episode_len", "cost_weight_base")
+    values = {k: getattr(cfg, k) for k in keys}
+    values.update(aug)
+    atomic_write_json(path, values)
+    return path
+
+
 def _q_peer(task) -> list[str]:
     return ["--cost-limit", str(task.kappa), "--episode-len", str(task.episode_len)]
 
@@ -112,6 +182,8 @@ PEERS = {
     "fisor": ("fisor_peer.py", lambda task: [
         "--episode-len", str(task.episode_len), "--r-max", str(task.r_max), "--r-min",
         str(task.r_min), "--cost-limit", str(task.kappa)], fisor_params),
+    # OSRL's CDT: its values from our config (the peer's --config, written by `scores`)
+    "cdt": ("osrl_cdt_peer.py", lambda task: [], cdt_params),
 }
 
 
@@ -126,6 +198,8 @@ def peer(args, task, file: str, seed: int, out: Path) -> dict:
     if args.algo == "fisor":
         cmd += ["--fisor-src", args.fisor_src]
     else:
+        if args.algo == "cdt":
+            cmd += ["--config", str(out.parent / "cdt_config.json")]
         cmd += ["--threads", "2"]
     env = dict(os.environ, WANDB_MODE="disabled", PYTHONNOUSERSITE="1")
     subprocess.run(cmd, check=True, env=env, capture_output=True, text=True)
@@ -145,14 +219,17 @@ def agree(a: dict, b: dict) -> bool:
 def scores(args, task, ds, file: str, out: Path) -> dict:
     from r2pac_jax.agents import make_agent
     from r2pac_jax.config import make_config
-    from r2pac_jax.evaluate import LaneEvaluator, eval_keys
+    from r2pac_jax.evaluate import LaneEvaluator, eval_keys, policy_of
     from r2pac_jax.lanes import Lanes
     from r2pac_jax.loop import Run
 
     seeds = list(range(args.seeds))
     over = dict(steps=args.steps, seeds=args.seeds, eval_episodes=args.episodes,
                 eval_every=args.steps, checkpoint_every=args.steps, threshold_every=args.block)
-    cfg = make_config(task, args.algo, "paper", over)  # OSRL's settings, fewer steps
+    cfg = make_config(task, args.algo, args.preset, over)  # paper: OSRL's settings
+    if args.algo == "cdt":
+        (out / "osrl").mkdir(parents=True, exist_ok=True)
+        cdt_peer_config(cfg, task, ds, out / "osrl" / "cdt_config.json")
 
     def ours():
         t0 = time.time()
@@ -165,14 +242,21 @@ def scores(args, task, ds, file: str, out: Path) -> dict:
     def theirs():
         infos = [peer(args, task, file, s, out / "osrl" / f"s{s}") for s in seeds]
         agent = make_agent(cfg, task.obs_dim, task.act_dim)
-        pp = PEERS[args.algo][2]([out / "osrl" / f"s{s}.npz" for s in seeds])
-        ev = LaneEvaluator(agent.act, task, args.episodes)(pp, eval_keys(seeds, cfg.total_steps))
+        files = [out / "osrl" / f"s{s}.npz" for s in seeds]
+        if args.algo == "cdt":  # our targets (the data's best safe return, kappa) on both sides
+            targets = (agent.target_return_of(task, ds), cfg.target_cost)
+            pp = cdt_params(files, targets)
+        else:
+            pp = PEERS[args.algo][2](files)
+        ev = LaneEvaluator(policy_of(agent), task, args.episodes)(pp, eval_keys(seeds, cfg.total_steps))
         res = dict(normalized_reward=_stats(ev["normalized_reward"]),
                    normalized_cost=_stats(ev["normalized_cost"]),
                    train_steps_per_s=[i["steps_per_s"] for i in infos],
                    curves=[i["curve"] for i in infos])
         if args.algo == "fisor":
             res["probe_max_abs_diff"] = fisor_probe(agent, pp, out / "osrl" / "s0.npz")
+        if args.algo == "cdt":
+            res["cdt_probe_max_abs_diff"] = cdt_probe(agent, pp, out / "osrl" / "s0.npz")
         return res
 
     mine = _json(out / "ours.json", ours)
@@ -187,7 +271,8 @@ def write_table(s: dict, out: Path) -> str:
 
     them = "FISOR's code" if s["algo"] == "fisor" else "OSRL"
     lines = [f"{them} {s['algo']} vs r2pac-jax `{s['algo']}` on {s['task']} "
-             f"({Path(s['dataset']).name}); {s['steps']} gradient steps each side, "
+             f"({Path(s['dataset']).name}); our `{s.get('preset', 'paper')}` preset's values "
+             f"on both sides, {s['steps']} gradient steps each side, "
              f"{s['seeds']} seeds, {s['episodes']} episodes per seed in our environment; "
              f"{s['machine']['cpus']} CPUs, jax {s['machine']['jax']}, {s['machine']['date']}", ""]
     sp, sc = s.get("speed"), s.get("scores")
@@ -207,6 +292,11 @@ def write_table(s: dict, out: Path) -> str:
         def f(x):
             return f"{x['mean']:.2f} ± {x['std']:.2f}"
 
+        if "cdt_probe_max_abs_diff" in o:
+            d = o["cdt_probe_max_abs_diff"]
+            lines += [f"Our transformer on OSRL's parameters, 32 fixed windows: max |diff| "
+                      f"action mean {d['mu']:.1e} (outputs up to {d['mu_scale']:.2f}), log-std "
+                      f"{d['log_std']:.1e}, cost log-probs {d['cost_logp']:.1e}.", ""]
         if "probe_max_abs_diff" in o:
             d = o["probe_max_abs_diff"]
             lines += [f"Our networks on FISOR's parameters, 64 fixed inputs: max |diff| eps "
@@ -235,6 +325,8 @@ def main(argv=None) -> int:
                     help="FISOR's side virtualenv (its jax; how to make it: benchmarks/RESULTS.md)")
     ap.add_argument("--fisor-src", default=str(HERE.parent.parent / "fisor-src"),
                     help="a checkout of FISOR (its jaxrl5 package is imported from there)")
+    ap.add_argument("--preset", default="paper", choices=["paper", "quick"],
+                    help="our preset, whose values both sides use (paper: the original's)")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--block", type=int, default=500, help="our compiled block (steps)")
@@ -262,13 +354,15 @@ def main(argv=None) -> int:
         return 2
     task = get_task(name)
     ds = load_task_dataset(task, args.dataset, announce=print)
-    out = Path(args.out) / f"{args.algo}-{task.name}"
+    out = Path(args.out) / (f"{args.algo}-{task.name}"
+                            + ("" if args.preset == "paper" else f"-{args.preset}"))
     out.mkdir(parents=True, exist_ok=True)
-    summary = dict(algo=args.algo, task=task.name, dataset=ds.source, seeds=args.seeds,
+    summary = dict(algo=args.algo, preset=args.preset, task=task.name, dataset=ds.source,
+                   seeds=args.seeds,
                    steps=args.steps, episodes=args.episodes, machine=machine())
     summary["scores"] = scores(args, task, ds, ds.source, out)
     summary["speed"] = _json(out / "speed.json", lambda: dict(
-        ours=[algo_speed(task, ds, args.algo, n, block_steps=args.block, preset="paper")
+        ours=[algo_speed(task, ds, args.algo, n, block_steps=args.block, preset=args.preset)
               for n in (1, args.seeds)], machine=machine()))
     from r2pac_jax.io import atomic_write_json
 

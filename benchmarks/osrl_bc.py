@@ -71,7 +71,7 @@ def osrl_params(npz_files: list[Path]) -> dict:
 def scores(args, task, ds, file: str, out: Path) -> dict:
     from r2pac_jax.agents import make_agent
     from r2pac_jax.config import make_config
-    from r2pac_jax.evaluate import LaneEvaluator, eval_keys
+    from r2pac_jax.evaluate import LaneEvaluator, eval_keys, policy_of
     from r2pac_jax.lanes import Lanes
     from r2pac_jax.loop import Run
 
@@ -97,7 +97,7 @@ def scores(args, task, ds, file: str, out: Path) -> dict:
                           out / "osrl" / f"{mode}-s{s}") for s in seeds]
             agent = make_agent(cfg, task.obs_dim, task.act_dim)
             pp = osrl_params([out / "osrl" / f"{mode}-s{s}.npz" for s in seeds])
-            ev = LaneEvaluator(agent.act, task, args.episodes)(pp, eval_keys(seeds, cfg.total_steps))
+            ev = LaneEvaluator(policy_of(agent), task, args.episodes)(pp, eval_keys(seeds, cfg.total_steps))
             return dict(
                 normalized_reward=dict(mean=float(np.mean(ev["normalized_reward"])),
                                        std=float(np.std(ev["normalized_reward"])),

@@ -1,6 +1,7 @@
 """Vectorised evaluation with DSRL's scores.
 
-A policy is `policy_fn(params, obs[B, obs_dim], key) -> action[B, act_dim]` (pure, jittable).
+A policy is `policy_fn(params, obs[B, obs_dim], key) -> action[B, act_dim]` (pure, jittable),
+or a `MemoryPolicy` (init / act / observe) for policies that carry a memory across steps (CDT).
 JAX environments run every episode in parallel inside one jit (vmap over episodes, scan over
 steps, episodes frozen after they end); environments stepped outside JAX (C MuJoCo) run a Python
 loop over control steps around the jitted policy. Both return per-episode returns, costs and
@@ -8,13 +9,41 @@ lengths, and the DSRL normalised reward and cost of the episode means.
 """
 from __future__ import annotations
 
-from typing import Callable, Optional
+from typing import Callable, NamedTuple, Optional, Union
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from r2pac_jax.tasks import TaskSpec, get_task
+
+
+class MemoryPolicy(NamedTuple):
+    """A policy with memory: init(params, obs[B, o]) -> mem; act(params, obs, key, mem) ->
+    (action[B, a], mem); observe(params, mem, reward[B], cost[B]) -> mem after each step."""
+
+    init: Callable
+    act: Callable
+    observe: Callable
+
+
+Policy = Union[Callable, MemoryPolicy]
+
+
+def policy_of(agent) -> Policy:
+    """What evaluation runs for an agent: its memory triple if it has one, else `act`."""
+    if all(hasattr(agent, n) for n in ("memory_init", "act_memory", "observe")):
+        return MemoryPolicy(agent.memory_init, agent.act_memory, agent.observe)
+    return agent.act
+
+
+def _as_memory_policy(policy: Policy) -> MemoryPolicy:
+    """A stateless policy as a memory policy with an empty memory (the same computation)."""
+    if isinstance(policy, MemoryPolicy):
+        return policy
+    return MemoryPolicy(init=lambda p, obs: (),
+                        act=lambda p, obs, k, mem: (policy(p, obs, k), mem),
+                        observe=lambda p, mem, r, c: mem)
 
 
 def dsrl_scores(mean_return, mean_cost, task: TaskSpec):
@@ -35,30 +64,35 @@ def _freeze(alive, new, old):
     return jax.tree_util.tree_map(pick, new, old)
 
 
-def rollout(policy_fn: Callable, params, env, key: jax.Array, episodes: int) -> dict:
+def rollout(policy_fn: Policy, params, env, key: jax.Array, episodes: int) -> dict:
     """All episodes of one policy in parallel (JAX env; jittable): arrays [E]."""
+    pol = _as_memory_policy(policy_fn)
     k_reset, k_act = jax.random.split(key)
     state = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
     zeros = jnp.zeros((episodes,), jnp.float32)
 
     def body(carry, k):
-        state, alive, ret, cost, length = carry
-        action = policy_fn(params, state.obs, k)
+        state, mem, alive, ret, cost, length = carry
+        action, mem = pol.act(params, state.obs, k, mem)
         new = jax.vmap(env.step)(state, action)
+        mem = pol.observe(params, mem, new.reward, new.cost)
         ret = ret + jnp.where(alive, new.reward, 0.0)
         cost = cost + jnp.where(alive, new.cost, 0.0)
         length = length + alive.astype(jnp.int32)
         state = _freeze(alive, new, state)
-        return (state, alive & ~new.done, ret, cost, length), None
+        return (state, mem, alive & ~new.done, ret, cost, length), None
 
-    init = (state, jnp.ones((episodes,), bool), zeros, zeros, jnp.zeros((episodes,), jnp.int32))
-    (_, _, ret, cost, length), _ = jax.lax.scan(body, init,
-                                                jax.random.split(k_act, env.episode_len))
+    init = (state, pol.init(params, state.obs), jnp.ones((episodes,), bool), zeros, zeros,
+            jnp.zeros((episodes,), jnp.int32))
+    (_, _, _, ret, cost, length), _ = jax.lax.scan(body, init,
+                                                   jax.random.split(k_act, env.episode_len))
     return dict(returns=ret, costs=cost, lengths=length)
 
 
-def _rollout_python(policy_lanes: Callable, lane_params, env, keys: jax.Array, episodes: int):
-    """Lanes x episodes stepped from Python (non-JAX physics): arrays [L, E]."""
+def _rollout_python(policy_lanes: MemoryPolicy, lane_params, env, keys: jax.Array,
+                    episodes: int):
+    """Lanes x episodes stepped from Python (non-JAX physics), the policy's three functions
+    jitted and vmapped over lanes: arrays [L, E]."""
     L = keys.shape[0]
     n = L * episodes
     k_reset, k_act = jax.vmap(lambda k: jax.random.split(k), out_axes=1)(keys)
@@ -69,10 +103,14 @@ def _rollout_python(policy_lanes: Callable, lane_params, env, keys: jax.Array, e
     cost = np.zeros(n)
     length = np.zeros(n, np.int64)
     step_keys = jax.vmap(lambda k: jax.random.split(k, env.episode_len), out_axes=1)(k_act)
+    mem = policy_lanes.init(lane_params, jnp.asarray(state.obs).reshape(L, episodes, -1))
     for t in range(env.episode_len):
         obs = jnp.asarray(state.obs).reshape(L, episodes, -1)
-        action = np.asarray(policy_lanes(lane_params, obs, step_keys[t])).reshape(n, -1)
-        state = env.step_batch(state, action)
+        action, mem = policy_lanes.act(lane_params, obs, step_keys[t], mem)
+        state = env.step_batch(state, np.asarray(action).reshape(n, -1))
+        mem = policy_lanes.observe(lane_params, mem,
+                                   jnp.asarray(state.reward, jnp.float32).reshape(L, episodes),
+                                   jnp.asarray(state.cost, jnp.float32).reshape(L, episodes))
         ret += np.where(alive, np.asarray(state.reward), 0.0)
         cost += np.where(alive, np.asarray(state.cost), 0.0)
         length += alive
@@ -91,7 +129,7 @@ class LaneEvaluator:
     and `normalized_reward`, `normalized_cost` [L]. Built once; the rollout compiles once.
     """
 
-    def __init__(self, policy_fn: Callable, task: TaskSpec, episodes: int = 20, env=None,
+    def __init__(self, policy_fn: Policy, task: TaskSpec, episodes: int = 20, env=None,
                  physics: str = "auto"):
         self.task = task
         self.episodes = episodes
@@ -100,7 +138,8 @@ class LaneEvaluator:
             self._run = jax.jit(jax.vmap(
                 lambda p, k: rollout(policy_fn, p, self.env, k, episodes)))
         else:
-            self._policy_lanes = jax.jit(jax.vmap(policy_fn))
+            pol = _as_memory_policy(policy_fn)
+            self._policy_lanes = MemoryPolicy(*(jax.jit(jax.vmap(f)) for f in pol))
             self._run = lambda p, k: _rollout_python(self._policy_lanes, p, self.env, k, episodes)
 
     def __call__(self, lane_params, keys: jax.Array) -> dict:
@@ -159,7 +198,7 @@ def evaluate_run(run_dir, episodes: int = 20, selection: Optional[str] = None,
             raise ConfigError(f"{cfg.algo} has no guidance scale to change")
         pp["guidance"] = jnp.full_like(pp["guidance"], guidance_scale)
     keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(seed), s) for s in lanes["seeds"]])
-    out = LaneEvaluator(agent.act, task, episodes, physics=physics)(pp, keys)
+    out = LaneEvaluator(policy_of(agent), task, episodes, physics=physics)(pp, keys)
     out["seeds"] = lanes["seeds"]
     return out
 

@@ -137,10 +137,10 @@ def compiled(cfg: Config, obs_dim: int, act_dim: int):
 
 @functools.lru_cache(maxsize=16)
 def lane_evaluator(cfg: Config, task: TaskSpec, episodes: int, physics: str):
-    from r2pac_jax.evaluate import LaneEvaluator
+    from r2pac_jax.evaluate import LaneEvaluator, policy_of
 
     agent = compiled(cfg, task.obs_dim, task.act_dim)[0]
-    return LaneEvaluator(agent.act, task, episodes, physics=physics)
+    return LaneEvaluator(policy_of(agent), task, episodes, physics=physics)
 
 
 def check_run(cfg: Config, task: TaskSpec, ds: Dataset) -> None:

@@ -44,6 +44,9 @@ def load_policy(run_dir, lane: int = 0):
     """`act(obs, key) -> action` for lane `lane` of the run in `run_dir` (see loop.Run).
 
     obs: [obs_dim] -> action [act_dim], or [B, obs_dim] -> [B, act_dim]; actions lie in [-1, 1].
+    A policy with memory (CDT) comes as `act(obs, key, memory) -> (action, memory)` with
+    `act.init(obs) -> memory` at an episode's start and `act.observe(memory, reward, cost) ->
+    memory` after each step (batched: obs [B, obs_dim], reward and cost [B]).
     """
     from r2pac_jax.agents import make_agent
     from r2pac_jax.tasks import get_task
@@ -56,6 +59,8 @@ def load_policy(run_dir, lane: int = 0):
     if not 0 <= lane < n:
         raise IndexError(f"lane {lane} out of range: the run has {n} lanes")
     pp = jax.tree_util.tree_map(lambda x: x[lane], pp)
+    if hasattr(agent, "memory_init"):
+        return _memory_policy(agent, pp)
 
     @jax.jit
     def act(obs, key):
@@ -64,4 +69,19 @@ def load_policy(run_dir, lane: int = 0):
         a = agent.act(pp, obs[None] if single else obs, key)
         return a[0] if single else a
 
+    return act
+
+
+def _memory_policy(agent, pp):
+    """load_policy's form for agents with memory (batched observations only)."""
+
+    step = jax.jit(lambda obs, key, memory: agent.act_memory(
+        pp, jnp.asarray(obs, jnp.float32), key, memory))
+
+    def act(obs, key, memory):
+        return step(obs, key, memory)
+
+    act.init = jax.jit(lambda obs: agent.memory_init(pp, jnp.asarray(obs, jnp.float32)))
+    act.observe = jax.jit(lambda memory, reward, cost: agent.observe(
+        pp, memory, jnp.asarray(reward, jnp.float32), jnp.asarray(cost, jnp.float32)))
     return act

@@ -23,7 +23,9 @@ TINY = dict(steps=20, batch_size=32, hidden_dims=(16, 16), actor_hidden_dims=(16
             num_candidates=4, threshold_subset=256, eval_episodes=2, seeds=2,
             # the OSRL-ported baselines' networks
             a_hidden_dims=(16, 16), c_hidden_dims=(16, 16), vae_hidden=16,
-            critic_hidden_dims=(16, 16), actor_hidden=16, actor_blocks=1, critic_batch=16)
+            critic_hidden_dims=(16, 16), actor_hidden=16, actor_blocks=1, critic_batch=16,
+            # CDT's transformer
+            embedding_dim=16, num_heads=2, num_layers=1)
 
 
 def tiny_config(algo="r2pac", task="ReachAvoid", **kw):

@@ -52,3 +52,52 @@ def test_episodes_freeze_after_terminal():
     # leaves the arena at x < -2.5 well before 80 steps; nothing accrues afterwards
     assert (out["lengths"] < 80).all()
     assert np.all(out["returns"] < 0)
+
+
+class _ViaPython:
+    """ReachAvoid stepped through the batch interface from Python (the C-MuJoCo path)."""
+
+    is_jax = False
+
+    def __init__(self, env):
+        self.env, self.episode_len = env, env.episode_len
+
+    def reset_batch(self, keys):
+        return self.env.reset_batch(keys)
+
+    def step_batch(self, state, actions):
+        return self.env.step_batch(state, jnp.asarray(actions))
+
+
+def _memory_policy():
+    """Slows down as the reward it has received grows: the memory decides the action."""
+    from r2pac_jax.evaluate import MemoryPolicy
+
+    def init(params, obs):
+        return jnp.zeros(obs.shape[0])
+
+    def act(params, obs, key, mem):
+        speed = params["speed"] / (1.0 + jnp.maximum(mem, 0.0))
+        return _straight({"speed": 1.0}, obs, key) * speed[:, None], mem
+
+    def observe(params, mem, reward, cost):
+        return mem + reward
+
+    return MemoryPolicy(init, act, observe)
+
+
+def test_a_policy_with_memory_runs_alike_in_jax_and_python_rollouts():
+    from r2pac_jax.evaluate import LaneEvaluator
+
+    task = get_task("ReachAvoid")
+    pol = _memory_policy()
+    params = {"speed": jnp.array([1.0, 0.7])}
+    keys = jnp.stack([jax.random.PRNGKey(0), jax.random.PRNGKey(1)])
+    env = ra.ReachAvoidEnv()
+    a = LaneEvaluator(pol, task, 3, env=env)(params, keys)
+    b = LaneEvaluator(pol, task, 3, env=_ViaPython(env))(params, keys)
+    np.testing.assert_allclose(a["returns"], b["returns"], rtol=1e-4, atol=1e-4)
+    np.testing.assert_array_equal(a["costs"], b["costs"])
+    # the memory matters: without it (full speed throughout) the returns differ
+    c = LaneEvaluator(lambda p, o, k: _straight(p, o, k), task, 3, env=env)(params, keys)
+    assert not np.allclose(a["returns"], c["returns"])

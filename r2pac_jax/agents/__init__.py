@@ -10,7 +10,7 @@ import importlib
 from types import ModuleType
 
 # module names under r2pac_jax.agents, in the order `--algo`'s help lists them
-MODULES = ("r2pac", "bc_flow", "bc_mlp", "cpq", "bcq_lag", "coptidice", "fisor")
+MODULES = ("r2pac", "bc_flow", "bc_mlp", "cpq", "bcq_lag", "coptidice", "fisor", "cdt")
 
 
 def _variants() -> dict[str, str]:

@@ -64,6 +64,13 @@ class Algorithm(Protocol):
     def summary(self, state: Any) -> dict:
         """Per-run scalars worth reporting in results.json (e.g. the threshold), or {}."""
 
+    # Optional: a policy with memory (CDT's context of returns-/costs-to-go). An agent that
+    # defines all three is evaluated through them (`evaluate.policy_of`); `act` then acts as
+    # at an episode's first step.
+    #   memory_init(pp, obs[B, o]) -> mem
+    #   act_memory(pp, obs[B, o], key, mem) -> (action[B, a], mem)
+    #   observe(pp, mem, reward[B], cost[B]) -> mem      (after each environment step)
+
 
 @struct.dataclass
 class ActorState:
