@@ -2,8 +2,8 @@
 
 The fixture `fixtures/agents_a022372.npz` was made by `fixtures/make_agent_fixture.py` at that
 commit (its docstring says how to make it again). Bitwise equality is a promise for the same
-machine kind and jax version as the fixture's; on another jax version the arrays must still
-agree to float tolerance (and the test says which comparison it made).
+machine kind (the CPU model and ISA flags recorded in the fixture, `make_agent_fixture.cpu_kind`)
+and jax version as the fixture's; elsewhere the arrays must still agree to float tolerance.
 """
 import json
 import sys
@@ -31,7 +31,10 @@ def reference():
 
 
 def _compare(ref, meta, current, algos, with_run):
-    exact = meta["jax"] == jax.__version__ and meta["backend"] == jax.default_backend()
+    # bitwise on the fixture's own kind of machine (jax, backend and CPU); a fixture made
+    # before the CPU was recorded, or another CPU, is compared to float tolerance
+    exact = (meta["jax"] == jax.__version__ and meta["backend"] == jax.default_backend()
+             and meta.get("cpu") == fx.cpu_kind())
     ref_keys = {k for k in ref.files if k != "__meta__"
                 and (k.split("/")[0] in algos or (with_run and k.startswith("run/")))}
     missing = ref_keys - set(current)
