@@ -226,6 +226,8 @@ def scores(args, task, ds, file: str, out: Path) -> dict:
     seeds = list(range(args.seeds))
     over = dict(steps=args.steps, seeds=args.seeds, eval_episodes=args.episodes,
                 eval_every=args.steps, checkpoint_every=args.steps, threshold_every=args.block)
+    if args.no_augmentation:
+        over["augment_percent"] = 0.0
     cfg = make_config(task, args.algo, args.preset, over)  # paper: OSRL's settings
     if args.algo == "cdt":
         (out / "osrl").mkdir(parents=True, exist_ok=True)
@@ -327,6 +329,9 @@ def main(argv=None) -> int:
                     help="a checkout of FISOR (its jaxrl5 package is imported from there)")
     ap.add_argument("--preset", default="paper", choices=["paper", "quick"],
                     help="our preset, whose values both sides use (paper: the original's)")
+    ap.add_argument("--no-augmentation", action="store_true",
+                    help="cdt: no Pareto augmentation on either side (OSRL's fails on data "
+                         "whose filtered Pareto frontier is one episode: polyfit on one point)")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--block", type=int, default=500, help="our compiled block (steps)")
@@ -355,14 +360,20 @@ def main(argv=None) -> int:
     task = get_task(name)
     ds = load_task_dataset(task, args.dataset, announce=print)
     out = Path(args.out) / (f"{args.algo}-{task.name}"
-                            + ("" if args.preset == "paper" else f"-{args.preset}"))
+                            + ("" if args.preset == "paper" else f"-{args.preset}")
+                            + ("-noaug" if args.no_augmentation else ""))
+    if args.no_augmentation and args.algo != "cdt":
+        print("error: --no-augmentation is for --algo cdt", file=sys.stderr)
+        return 2
     out.mkdir(parents=True, exist_ok=True)
-    summary = dict(algo=args.algo, preset=args.preset, task=task.name, dataset=ds.source,
+    summary = dict(algo=args.algo, preset=args.preset, augmentation=not args.no_augmentation,
+                   task=task.name, dataset=ds.source,
                    seeds=args.seeds,
                    steps=args.steps, episodes=args.episodes, machine=machine())
     summary["scores"] = scores(args, task, ds, ds.source, out)
     summary["speed"] = _json(out / "speed.json", lambda: dict(
-        ours=[algo_speed(task, ds, args.algo, n, block_steps=args.block, preset=args.preset)
+        ours=[algo_speed(task, ds, args.algo, n, block_steps=args.block, preset=args.preset,
+                         over=dict(augment_percent=0.0) if args.no_augmentation else None)
               for n in (1, args.seeds)], machine=machine()))
     from r2pac_jax.io import atomic_write_json
 

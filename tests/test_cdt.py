@@ -297,3 +297,16 @@ def test_a_finished_cdt_run_loads_as_a_policy_with_memory(reach_avoid_data, tmp_
     best = float(ret[cost <= task.kappa].max())
     np.testing.assert_allclose(np.asarray(mem.next_rtg), (best - 1.0) * cfg.reward_scale,
                                rtol=1e-5)
+
+
+def test_a_one_episode_frontier_fits_a_constant():
+    """OSRL's polyfit fails when the grid-filtered Pareto frontier is one episode (CarGoal1 v2:
+    a safe episode of return 37.9 dominates every kept one); ours fits the frontier's degree to
+    its points (one point: a constant) and still draws targets above it."""
+    cost = np.array([0.0] * 3 + [10.0] * 3 + [20.0] * 3)
+    ret = np.array([30.0] * 3 + [10.0] * 3 + [20.0] * 3)
+    src, tc, tr = sequences.augment(cost, ret, deg=1, max_rew_decrease=50.0, beta=1.0,
+                                    augment_percent=1.0, max_reward=40.0, min_reward=1.0,
+                                    rng=np.random.default_rng(0))
+    assert src.size == 9 and np.all(np.isfinite(tr))
+    assert np.all(tr >= 31.0 - 1e-9)  # above the constant frontier (30) + min_reward

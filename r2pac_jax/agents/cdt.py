@@ -32,6 +32,8 @@ What differs from OSRL, and why:
 - The augmented episodes are drawn once per run (seed `augment_seed`) and shared by the
   vmapped seeds; OSRL draws them per training seed.
 - Cost labels are min(floor(c), 1): OSRL's `costs.long()` fails on costs above 1.
+- The frontier's polynomial degree is at most its number of distinct costs - 1: OSRL's
+  `polyfit` fails when the filtered frontier is a single episode (as on CarGoal1 v2).
 """
 from __future__ import annotations
 

@@ -141,7 +141,9 @@ def augment(costs: np.ndarray, returns: np.ndarray, deg: int, max_rew_decrease: 
         return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
     c, r = np.asarray(costs, np.float64)[kept], np.asarray(returns, np.float64)[kept]
     front = pareto_front(c, r)
-    frontier = np.poly1d(np.polyfit(c[front], r[front], deg=min(deg, max(front.size - 1, 0))))
+    # at most (distinct costs - 1) degrees: OSRL's polyfit fails on a one-cost frontier
+    fit_deg = min(deg, np.unique(c[front]).size - 1)
+    frontier = np.poly1d(np.polyfit(c[front], r[front], deg=fit_deg))
     n = int(augment_percent * c.size)
     if n == 0:
         return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
