@@ -176,6 +176,7 @@ def test_padding_changes_no_loss_term(reach_avoid_data):
         assert float(aux1[k]) == pytest.approx(float(aux2[k]), rel=1e-5, abs=1e-6), k
 
 
+@pytest.mark.slow
 def test_temperature_moves_toward_the_target_entropy(reach_avoid_data):
     _, cfg, agent, hp, state, data = _agent(reach_avoid_data)
     b = agent.sample(data, jax.random.PRNGKey(1))
@@ -276,6 +277,7 @@ def test_bad_input_is_named(reach_avoid_data):
     assert any("target_return" in str(x.message) for x in w)
 
 
+@pytest.mark.slow  # a Run with evaluation (~1 min); the default suite trains cdt in test_train
 def test_a_finished_cdt_run_loads_as_a_policy_with_memory(reach_avoid_data, tmp_path):
     import r2pac_jax
     from r2pac_jax.lanes import Lanes
