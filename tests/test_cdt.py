@@ -10,15 +10,13 @@ import pytest
 
 from conftest import tiny_config, toy_arrays
 from r2pac_jax.agents import cdt, make_agent
-from r2pac_jax.agents.decision_transformer import (DecisionTransformer, gaussian_entropy,
-                                                   gaussian_log_prob)
+from r2pac_jax.agents.decision_transformer import DecisionTransformer
+from r2pac_jax.agents.gaussian import entropy as gaussian_entropy
+from r2pac_jax.agents.gaussian import log_prob as gaussian_log_prob
 from r2pac_jax.config import ConfigError, default_hparams, make_config
 from r2pac_jax.data import sequences
 from r2pac_jax.data.dsrl import validate
 from r2pac_jax.tasks import get_task
-
-TINY_NET = {}  # conftest.TINY has CDT's tiny network
-
 
 def _toy(episodes=((4, "timeout"), (3, "terminal"), (5, "timeout"))):
     return validate(toy_arrays(episodes), "toy")
@@ -36,7 +34,7 @@ def test_to_go_sums_each_episode_to_its_end():
 
 def test_windows_pad_past_the_episode_end_and_carry_time_steps():
     ds = _toy()
-    data = sequences.build_sequences(ds, 3, cost_weight_base=None)
+    data = sequences.build_sequences(ds, cost_weight_base=None)
     b = sequences.sample(data, jax.random.PRNGKey(0), 256, 3, reward_scale=0.1, cost_scale=2.0)
     starts, lengths, _, _ = sequences.episode_table(ds)
     rtg = sequences.to_go(ds.rewards, starts, lengths)
@@ -66,12 +64,12 @@ def test_cost_weighted_sampling_never_draws_an_episode_at_or_above_the_base():
     ds = _toy()
     _, _, _, cost = sequences.episode_table(ds)
     base = float(np.sort(cost)[1])  # the cheapest episode only stays below the base
-    data = sequences.build_sequences(ds, 2, cost_weight_base=base)
+    data = sequences.build_sequences(ds, cost_weight_base=base)
     probs = np.exp(np.asarray(data.ep_logits))
     np.testing.assert_allclose(probs[cost >= base], 0.0)
     assert probs.sum() == pytest.approx(1.0, rel=1e-5)
     with pytest.raises(ValueError, match="cost_sample=false"):
-        sequences.build_sequences(ds, 2, cost_weight_base=float(cost.min()))
+        sequences.build_sequences(ds, cost_weight_base=float(cost.min()))
 
 
 def test_pareto_front_and_grid_filter_on_hand_made_points():
@@ -107,7 +105,7 @@ def test_augmented_rows_are_their_sources_with_shifted_targets():
     starts, lengths, ret, cost = sequences.episode_table(ds)
     aug = dict(deg=1, max_rew_decrease=5.0, beta=1.0, augment_percent=0.5,
                max_reward=float(ret.max()) + 2, min_reward=0.1)
-    data = sequences.build_sequences(ds, 2, augmentation=aug, cost_weight_base=None, seed=3)
+    data = sequences.build_sequences(ds, augmentation=aug, cost_weight_base=None, seed=3)
     m = starts.size
     n_aug = int(data.ep_len.shape[0]) - m
     assert n_aug > 0
@@ -150,7 +148,7 @@ def test_gaussian_terms_match_closed_forms():
 
 def _agent(reach_avoid_data, **kw):
     task = get_task("ReachAvoid")
-    cfg = tiny_config("cdt", **{**TINY_NET, **kw})
+    cfg = tiny_config("cdt", **kw)  # conftest.TINY holds CDT's tiny network
     agent = make_agent(cfg, task.obs_dim, task.act_dim)
     hp = default_hparams(cfg)
     state = agent.init(jax.random.PRNGKey(0), hp)
@@ -184,7 +182,7 @@ def test_temperature_moves_toward_the_target_entropy(reach_avoid_data):
     # entropy (about 1.4 per dimension at init) exceeds the target -act_dim: temperature falls
     assert float(m["entropy"]) > agent.target_entropy
     assert float(new.params["log_temperature"]) < float(state.params["log_temperature"])
-    off = tiny_config("cdt", entropy_reg=False, **TINY_NET)
+    off = tiny_config("cdt", entropy_reg=False)
     agent2 = make_agent(off, 6, 2)
     new2, _ = jax.jit(agent2.update, static_argnums=3)(state, b, hp, "actor")
     assert float(new2.params["log_temperature"]) == float(state.params["log_temperature"])
@@ -232,7 +230,7 @@ def test_targets_come_from_the_data_and_the_task(reach_avoid_data):
     assert float(state.target_return) == pytest.approx(float(ret[cost <= task.kappa].max()))
     pp = agent.policy_params(state, hp)
     assert float(pp["target_cost"]) == task.kappa
-    fixed = tiny_config("cdt", target_rule="value", target_return=12.5, **TINY_NET)
+    fixed = tiny_config("cdt", target_rule="value", target_return=12.5)
     a2 = make_agent(fixed, task.obs_dim, task.act_dim)
     assert float(a2.make_data(task, reach_avoid_data).target_return) == 12.5
 
@@ -266,10 +264,10 @@ def test_bad_input_is_named(reach_avoid_data):
     arr["terminals"][-1] = True
     arr["next_observations"][:-1] = arr["observations"][1:]
     long = validate(arr, "unflagged")
-    agent = make_agent(tiny_config("cdt", **TINY_NET), task.obs_dim, task.act_dim)
+    agent = make_agent(tiny_config("cdt"), task.obs_dim, task.act_dim)
     with pytest.raises(ConfigError, match="timeouts"):
         agent.check_data(task, long)
-    odd = make_agent(tiny_config("cdt", target_rule="value", target_return=1e6, **TINY_NET),
+    odd = make_agent(tiny_config("cdt", target_rule="value", target_return=1e6),
                      task.obs_dim, task.act_dim)
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")

@@ -22,8 +22,6 @@ import json
 import sys
 import time
 
-KEYS = ("observations", "next_observations", "actions", "rewards", "costs", "terminals",
-        "timeouts")
 
 
 class _Box:
@@ -56,15 +54,15 @@ def main() -> None:
     args = ap.parse_args()
     sys.path.insert(0, args.fisor_src)
 
-    import h5py
     import jax
     import numpy as np
     from flax import traverse_util
 
     from jaxrl5.agents.fisor.fisor import FISOR
 
-    with h5py.File(args.file, "r") as f:
-        d = {k: np.asarray(f[k]) for k in KEYS}
+    from peer_io import read_dsrl
+
+    d = read_dsrl(args.file)
     done = np.logical_or(d["terminals"], d["timeouts"]).astype(np.float32)
     data = dict(observations=d["observations"].astype(np.float32),
                 next_observations=d["next_observations"].astype(np.float32),

@@ -26,12 +26,10 @@ import time
 
 os.environ.setdefault("WANDB_MODE", "disabled")
 
-import h5py  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from peer_io import read_dsrl  # noqa: E402
 
-KEYS = ("observations", "next_observations", "actions", "rewards", "costs", "terminals",
-        "timeouts")
 
 
 def main() -> None:
@@ -55,10 +53,8 @@ def main() -> None:
 
     seed_all(args.seed)
     torch.set_num_threads(args.threads)
-    with h5py.File(args.file, "r") as f:
-        data = {k: np.asarray(f[k]) for k in KEYS}
-    for k in KEYS:  # torch's Linear wants float32; OSRL reads the flags as 0/1 floats
-        data[k] = data[k].astype(np.float32)
+    # torch's Linear wants float32; OSRL reads the flags as 0/1 floats
+    data = read_dsrl(args.file, np.float32)
     n_all = int(data["observations"].shape[0])
     process_bc_dataset(data, args.cost_limit, 1.0, args.mode)
     n_kept = int(data["observations"].shape[0])

@@ -29,12 +29,10 @@ import time
 
 os.environ.setdefault("WANDB_MODE", "disabled")
 
-import h5py  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from peer_io import read_dsrl  # noqa: E402
 
-KEYS = ("observations", "next_observations", "actions", "rewards", "costs", "terminals",
-        "timeouts")
 
 
 def main() -> None:
@@ -58,8 +56,7 @@ def main() -> None:
 
     seed_all(args.seed)
     torch.set_num_threads(args.threads)
-    with h5py.File(args.file, "r") as f:
-        data = {k: np.asarray(f[k]).astype(np.float32) for k in KEYS}
+    data = read_dsrl(args.file, np.float32)
     n = int(data["observations"].shape[0])
     obs_dim, act_dim = data["observations"].shape[1], data["actions"].shape[1]
     t = {k: torch.as_tensor(v) for k, v in data.items()}

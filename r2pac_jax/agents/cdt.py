@@ -50,8 +50,8 @@ from flax import struct
 from r2pac_jax.agents.base import (ChunkAlgorithm, actor_only, check_act, check_choice,
                                    check_counts, check_dataset_sizes, check_lane_hparams,
                                    check_obs, check_positive)
-from r2pac_jax.agents.decision_transformer import (DecisionTransformer, gaussian_entropy,
-                                                   gaussian_log_prob)
+from r2pac_jax.agents import gaussian
+from r2pac_jax.agents.decision_transformer import DecisionTransformer
 from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data import sequences
 from r2pac_jax.data.sequences import SequenceBatch, SequenceData
@@ -231,16 +231,17 @@ class Agent(ChunkAlgorithm):
 
     # data ------------------------------------------------------------------------------------
     def _episodes(self, task, ds):
-        starts, lengths, ret, cost = sequences.episode_table(ds)
+        """(kept [E] bool or None, lengths, returns, costs of the kept episodes)."""
+        _, lengths, ret, cost = sequences.episode_table(ds)
         keep = self.keep_episodes(task, ds)
         if keep is not None:
             lengths, ret, cost = lengths[keep], ret[keep], cost[keep]
-        return lengths, ret, cost
+        return keep, lengths, ret, cost
 
     def check_data(self, task, ds) -> None:
         cfg = self.cfg
         check_dataset_sizes(task, ds)
-        lengths, ret, cost = self._episodes(task, ds)
+        _, lengths, ret, cost = self._episodes(task, ds)
         if lengths.max() > cfg.episode_len:
             raise ConfigError(
                 f"cdt: {ds.source} holds an episode of {int(lengths.max())} steps, longer than "
@@ -262,20 +263,24 @@ class Agent(ChunkAlgorithm):
                               f"[{vals.min():.4g}, {vals.max():.4g}]; the transformer was "
                               "never conditioned on such a value", stacklevel=2)
 
-    def target_return_of(self, task, ds) -> float:
+    def _target_return(self, task, ret, cost) -> float:
         if self.cfg.target_rule == "value":
             return float(self.cfg.target_return)
-        _, ret, cost = self._episodes(task, ds)
         return float(ret[cost <= task.kappa].max())
+
+    def target_return_of(self, task, ds) -> float:
+        """The evaluation's return target on this dataset (raw return)."""
+        _, _, ret, cost = self._episodes(task, ds)
+        return self._target_return(task, ret, cost)
 
     def make_data(self, task, ds) -> SequenceData:
         cfg = self.cfg
-        _, ret, _ = self._episodes(task, ds)
+        keep, _, ret, cost = self._episodes(task, ds)
         aug = augmentation_values(cfg, ret) if cfg.augment_percent > 0 else None
         return sequences.build_sequences(
-            ds, cfg.seq_len, keep_episodes=self.keep_episodes(task, ds), augmentation=aug,
+            ds, keep_episodes=keep, augmentation=aug,
             cost_weight_base=cfg.cost_weight_base if cfg.cost_sample else None,
-            target_return=self.target_return_of(task, ds), seed=cfg.augment_seed)
+            target_return=self._target_return(task, ret, cost), seed=cfg.augment_seed)
 
     def sample(self, data: SequenceData, key: jax.Array) -> SequenceBatch:
         c = self.cfg
@@ -305,8 +310,8 @@ class Agent(ChunkAlgorithm):
             train=True, rngs={"dropout": key})
         m = b.mask
         n_valid = jnp.maximum(m.sum(), 1.0) * self.act_dim
-        log_lik = (gaussian_log_prob(b.actions, mu, log_std) * m[..., None]).sum() / n_valid
-        entropy = (gaussian_entropy(log_std) * m[..., None]).sum() / n_valid
+        log_lik = (gaussian.log_prob(b.actions, mu, log_std) * m[..., None]).sum() / n_valid
+        entropy = (gaussian.entropy(log_std) * m[..., None]).sum() / n_valid
         temp = jnp.exp(log_t) * cfg.entropy_reg
         act_loss = -(log_lik + jax.lax.stop_gradient(temp) * entropy)
         nll = -jnp.take_along_axis(cost_logp, b.cost_labels[..., None], -1)[..., 0]

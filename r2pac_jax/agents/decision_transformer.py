@@ -118,12 +118,3 @@ class DecisionTransformer(nn.Module):
         state_pred = _dense(self.obs_dim, name="state_pred")(action_feat)
         return mu, log_std, cost_logp, state_pred
 
-
-def gaussian_log_prob(x, mu, log_std):
-    """Per-dimension log N(x | mu, exp(log_std)^2): all [..., a] -> [..., a]."""
-    return -0.5 * ((x - mu) * jnp.exp(-log_std)) ** 2 - log_std - 0.5 * jnp.log(2 * jnp.pi)
-
-
-def gaussian_entropy(log_std):
-    """Per-dimension entropy of N(., exp(log_std)^2): [..., a] -> [..., a]."""
-    return 0.5 + 0.5 * jnp.log(2 * jnp.pi) + log_std

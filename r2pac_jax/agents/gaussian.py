@@ -1,8 +1,20 @@
-"""The AWR Gaussian actor's likelihood (the paper's "AWR actor" ablation, Eq. 40)."""
+"""Diagonal Gaussian policies' likelihood: the AWR actor (the paper's "AWR actor" ablation,
+Eq. 40) and CDT's action head."""
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+
+
+def log_prob(x, mean, log_std) -> jax.Array:
+    """Per-dimension log N(x | mean, exp(log_std)^2): all [..., A] -> [..., A]."""
+    z = (x - mean) * jnp.exp(-log_std)
+    return -0.5 * z**2 - log_std - 0.5 * jnp.log(2.0 * jnp.pi)
+
+
+def entropy(log_std) -> jax.Array:
+    """Per-dimension entropy of N(., exp(log_std)^2): [..., A] -> [..., A]."""
+    return 0.5 + 0.5 * jnp.log(2.0 * jnp.pi) + log_std
 
 
 def chunk_log_prob(mean, log_std, x, mask) -> jax.Array:
@@ -10,9 +22,7 @@ def chunk_log_prob(mean, log_std, x, mask) -> jax.Array:
 
     mean, x: [B, h, A]; log_std broadcastable to [B, h, A]; mask [B, h] -> [B].
     """
-    z = (x - mean) * jnp.exp(-log_std)
-    lp = -0.5 * z**2 - log_std - 0.5 * jnp.log(2.0 * jnp.pi)
-    return (lp.sum(-1) * mask).sum(-1)
+    return (log_prob(x, mean, log_std).sum(-1) * mask).sum(-1)
 
 
 def weighted_nll(mean, log_std, x, mask, weights=None) -> jax.Array:

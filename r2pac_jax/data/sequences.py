@@ -155,7 +155,7 @@ def augment(costs: np.ndarray, returns: np.ndarray, deg: int, max_rew_decrease: 
     return kept[np.asarray(src, np.int64)], tc, tr
 
 
-def build_sequences(ds: Dataset, seq_len: int, keep_episodes: Optional[np.ndarray] = None,
+def build_sequences(ds: Dataset, keep_episodes: Optional[np.ndarray] = None,
                     augmentation: Optional[dict] = None, cost_weight_base: Optional[float] = 70.0,
                     target_return: Optional[float] = None, seed: int = 0) -> SequenceData:
     """The device view. augmentation: `augment`'s keyword values (deg, max_rew_decrease, beta,
