@@ -80,7 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--dataset", default=None, help="a DSRL-format HDF5 file")
     ap.add_argument("--out", default=None, help="run directory (default runs/TASK-ALGO-TIME)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out")
-    ap.add_argument("--physics", default="auto", help="auto | mjx | mujoco | jax")
+    ap.add_argument("--physics", default="auto", help="auto | mjx | mujoco | jax | bullet: the simulator of evaluation rollouts "
+                    "(auto: C MuJoCo on a CPU and MJX on an accelerator for MuJoCo tasks, "
+                    "pybullet for the Bullet tasks)")
     ap.add_argument("--eval-episodes", type=int, default=None)
     ap.add_argument("--eval-every", type=int, default=None)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",

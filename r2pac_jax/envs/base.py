@@ -41,6 +41,10 @@ class ActionError(ValueError):
     pass
 
 
+class BackendUnavailableError(RuntimeError):
+    """A physics backend cannot run here (not installed, or not built for this task)."""
+
+
 def check_action(action, act_dim: int, batch: int | None = None) -> np.ndarray:
     """Validate an action at a Python API border (gym wrapper, C-MuJoCo backend).
 

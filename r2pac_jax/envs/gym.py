@@ -65,6 +65,8 @@ class TaskGymEnv(gymnasium.Env):
         if self.env.is_jax:
             self._state = self._reset_fn(key)
         else:
+            if self._state is not None and hasattr(self.env, "release"):
+                self.env.release(self._state)  # a client-holding backend (bullet) recycles it
             self._state = self.env.reset_batch(key[None])
         self._ended = False
         return self._obs(), {}
@@ -110,7 +112,8 @@ def gym_env(task: str | TaskSpec, physics: str = "auto", seed: Optional[int] = N
     [-1, 1]^act_dim, cost in `info["cost"]`.
 
     task: short name, DSRL id or Safety-Gymnasium id (`r2pac_jax.tasks.get_task`).
-    physics: "auto" | "mujoco" | "mjx" for MuJoCo tasks, "auto" | "jax" for pure-JAX ones.
+    physics: "auto" | "mujoco" | "mjx" for MuJoCo tasks, "auto" | "bullet" for the Bullet ones,
+    "auto" | "jax" for pure-JAX ones.
     seed: the first reset's seed when `reset()` is called without one.
     Raises UnknownTaskError (listing the known tasks) or EnvUnavailableError (task without an
     environment port).

@@ -29,12 +29,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from r2pac_jax.envs.base import EnvState, JaxEnv, check_action
+from r2pac_jax.envs.base import BackendUnavailableError, EnvState, JaxEnv, check_action
 from r2pac_jax.envs import mjx_lean
 
-
-class BackendUnavailableError(RuntimeError):
-    pass
+__all__ = ["BackendUnavailableError", "MjTask", "MjxEnv", "MujocoEnv", "make_physics_env",
+           "resolve_physics"]
 
 
 class MjTask:

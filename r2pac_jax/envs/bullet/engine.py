@@ -1,0 +1,239 @@
+"""The `bullet` backend: the original's engine (pybullet 3.2.7), one physics client per episode,
+stepped in batch from Python on the CPU (`is_jax = False`). The faithful path for the
+Bullet-Safety-Gym tasks: it repeats the original's calls in the original's order (physics
+parameters, bodies loaded in the same order, the reset's restore / pose / save / step sequence,
+one `stepSimulation` of `frame_skip` sub-steps per control step), and runs the tasks' JAX rules
+(`tasks.py`) jitted and vmapped over the batch, as `physics.MujocoEnv` does for MuJoCo.
+
+Unlike C MuJoCo, a pybullet world cannot be stepped from a state vector: each episode's
+simulation lives in its client. So an `EnvState` of this backend names its clients
+(`physics["world"]`) with a stamp per step (`physics["stamp"]`), and stepping a state that is not
+the latest of its episode raises `StaleStateError`. A client is recycled by a later reset once
+its episode has ended (terminated or truncated) or has been `release`d; stepping an ended
+episode further (as the evaluation loop does while other lanes run) is allowed until then.
+"""
+from __future__ import annotations
+
+from typing import Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from r2pac_jax.envs.base import EnvState, check_action
+from r2pac_jax.envs.bullet.robots import ASSETS
+from r2pac_jax.envs.base import BackendUnavailableError
+
+INSTALL = "pip install -e '.[bullet]' (or pip install pybullet==3.2.7)"
+VIEW_KEYS = ("pos", "quat", "vel", "angvel", "dpos")
+
+
+class StaleStateError(RuntimeError):
+    pass
+
+
+def import_pybullet():
+    try:
+        import pybullet
+    except ImportError as e:
+        raise BackendUnavailableError(
+            f"the bullet physics backend needs pybullet, which is not installed ({e}): {INSTALL}"
+        ) from e
+    return pybullet
+
+
+class _World:
+    """One pybullet client holding one episode's world, built as the original builds it."""
+
+    def __init__(self, pb, task):
+        self.pb, self.task, self.robot = pb, task, task.robot
+        c = self.cid = pb.connect(pb.DIRECT)
+        pb.setPhysicsEngineParameter(fixedTimeStep=task.time_step * task.frame_skip,
+                                     numSolverIterations=task.solver_iterations,
+                                     deterministicOverlappingPairs=1,
+                                     numSubSteps=task.frame_skip, physicsClientId=c)
+        pb.setGravity(0, 0, -9.81, physicsClientId=c)
+        pb.setDefaultContactERP(0.9, physicsClientId=c)
+        ground = "plane250.urdf" if task.world == "plane250" else "plane15.urdf"
+        plane = pb.loadURDF(str(ASSETS / ground), physicsClientId=c)
+        pb.changeDynamics(plane, -1, lateralFriction=0.8, restitution=0.5, physicsClientId=c)
+        if task.world == "octagon":
+            for yaw in np.linspace(0, 7 / 8 * 2 * np.pi, num=8):
+                pb.loadURDF(str(ASSETS / "octagon_wall.urdf"), globalScaling=1,
+                            useFixedBase=True,
+                            baseOrientation=pb.getQuaternionFromEuler([0, 0, yaw]),
+                            physicsClientId=c)
+        # (the original's visual-only bodies, without collision shapes, are left out)
+        self.body = self.robot.load(pb, c)
+        self.robot.setup(pb, c, self.body)
+        self.saved = -1
+        self.stamp = 0
+        self.free = True
+
+    def read(self) -> dict:
+        pb, c, b = self.pb, self.cid, self.body
+        pos, quat = pb.getBasePositionAndOrientation(b, physicsClientId=c)
+        vel, ang = pb.getBaseVelocity(b, physicsClientId=c)
+        return dict(pos=np.array(pos), quat=np.array(quat), vel=np.array(vel),
+                    angvel=np.array(ang))
+
+    # the original's Body.set_position / set_orientation: each pybullet call is repeated, since
+    # the engine stores what it is given (a pose re-read and set again differs in the last bit,
+    # and contact dynamics grow such bits to visible differences within ~100 steps)
+    def set_position(self, pos) -> None:
+        pb, c = self.pb, self.cid
+        _, quat = pb.getBasePositionAndOrientation(self.body, physicsClientId=c)
+        quat = pb.getQuaternionFromEuler(pb.getEulerFromQuaternion(quat))
+        pb.resetBasePositionAndOrientation(self.body, pos, quat, physicsClientId=c)
+
+    def set_orientation(self, quat) -> None:
+        pb, c = self.pb, self.cid
+        pos, _ = pb.getBasePositionAndOrientation(self.body, physicsClientId=c)
+        pb.resetBasePositionAndOrientation(self.body, pos, quat, physicsClientId=c)
+
+    def reset(self, pose: dict) -> dict:
+        """The original's reset: restore the state saved at the first reset (zero velocities),
+        the robot's and the task's placement, save (first reset only), one simulation step.
+        `pose`: {pos [3]} float64, the task's sampled position."""
+        pb, c = self.pb, self.cid
+        if self.saved >= 0:
+            pb.restoreState(self.saved, physicsClientId=c)
+        self.robot.specific_reset(self)
+        pos = np.asarray(pose["pos"], np.float64)
+        self.set_position(pos)
+        yaw = self.task.yaw(pb.getBasePositionAndOrientation(self.body, physicsClientId=c)[0])
+        if yaw is not None:
+            self.set_orientation(pb.getQuaternionFromEuler([0.0, 0.0, yaw]))
+        before = np.array(pb.getBasePositionAndOrientation(self.body, physicsClientId=c)[0])
+        if self.saved < 0:
+            self.saved = pb.saveState(physicsClientId=c)
+        pb.stepSimulation(physicsClientId=c)
+        view = self.read()
+        view["dpos"] = view["pos"] - before
+        self.stamp += 1
+        self.free = False
+        return view
+
+    def step(self, action: np.ndarray, pos_before: np.ndarray) -> dict:
+        self.robot.apply_action(self.pb, self.cid, self.body, action)
+        self.pb.stepSimulation(physicsClientId=self.cid)
+        view = self.read()
+        view["dpos"] = view["pos"] - pos_before
+        self.stamp += 1
+        return view
+
+    def close(self):
+        try:
+            self.pb.disconnect(physicsClientId=self.cid)
+        except Exception:  # pragma: no cover - already gone at interpreter exit
+            pass
+
+
+class BulletEnv:
+    """Batched episodes of one Bullet task on pybullet (see the module docstring)."""
+
+    is_jax = False
+    backend = "bullet"
+
+    def __init__(self, task):
+        self._pb = import_pybullet()
+        self.task = task
+        self.name, self.obs_dim, self.act_dim = task.name, task.obs_dim, task.act_dim
+        self.episode_len = task.episode_len
+        self._worlds: list[_World] = []
+        self._split_init = jax.jit(jax.vmap(lambda k: (lambda a, b: (a, task.init(b)))(
+            *jax.random.split(k))))
+        self._start = jax.jit(jax.vmap(self._start_one))
+        self._outcome = jax.jit(jax.vmap(self._outcome_one))
+
+    def _start_one(self, view, extras):
+        extras = self.task.after_reset(view, extras)
+        return extras, self.task.observe(view, extras)
+
+    def _outcome_one(self, before, after, action, extras):
+        reward, cost, terminated, extras = self.task.transition(before, after, action, extras)
+        return reward, cost, terminated, extras, self.task.observe(after, extras)
+
+    # -- clients ----------------------------------------------------------------------------
+    def _acquire(self, n: int) -> list[int]:
+        free = [i for i, w in enumerate(self._worlds) if w.free]
+        while len(free) < n:
+            self._worlds.append(_World(self._pb, self.task))
+            free.append(len(self._worlds) - 1)
+        return free[:n]
+
+    def release(self, state: EnvState) -> None:
+        """Hand the state's clients back for later resets (the state can no longer be stepped)."""
+        for i in np.atleast_1d(np.asarray(state.physics["world"])):
+            self._worlds[int(i)].free = True
+            self._worlds[int(i)].stamp += 1
+
+    def close(self) -> None:
+        for w in self._worlds:
+            w.close()
+        self._worlds = []
+
+    def __del__(self):  # pragma: no cover - best effort
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    # -- protocol ---------------------------------------------------------------------------
+    def reset_batch(self, keys) -> EnvState:
+        keys, (pose, extras) = self._split_init(jnp.asarray(keys))
+        return self.reset_to({k: np.asarray(v, np.float64) for k, v in pose.items()}, extras, keys)
+
+    def reset_to(self, poses: dict, extras: Optional[dict] = None, keys=None) -> EnvState:
+        """Start episodes from given sampled positions: `pos` [n, 3] float64 (the original's
+        `specific_reset` draws them; the orientation and the rest follow as it sets them)."""
+        n = np.asarray(poses["pos"]).shape[0]
+        if extras is None:
+            extras = jax.vmap(lambda _: self.task.empty_extras())(jnp.arange(n))
+        if keys is None:
+            keys = jax.random.split(jax.random.PRNGKey(0), n)
+        ids = self._acquire(n)
+        rows = [self._worlds[w].reset({k: np.asarray(v)[i] for k, v in poses.items()})
+                for i, w in enumerate(ids)]
+        view = {k: np.stack([r[k] for r in rows]) for k in VIEW_KEYS}
+        extras, obs = self._start(self._as_f32(view), extras)
+        zeros = np.zeros(n, np.float32)
+        return self._state(view, ids, obs, zeros, zeros, np.zeros(n, bool), np.zeros(n, np.int32),
+                           keys, extras)
+
+    def step_batch(self, state: EnvState, actions) -> EnvState:
+        ids = np.asarray(state.physics["world"])
+        n = ids.shape[0]
+        actions = np.clip(check_action(actions, self.act_dim, batch=n), -1.0, 1.0)
+        stamps = np.asarray(state.physics["stamp"])
+        for i, w in enumerate(ids):
+            if self._worlds[w].stamp != stamps[i]:
+                raise StaleStateError(
+                    f"episode {i} of this state is not the latest state of its simulation "
+                    "(it was stepped, reset or released since): the bullet backend keeps one "
+                    "live simulation per episode; step the state step_batch / reset_batch "
+                    "returned last")
+        before = {k: np.asarray(state.physics[k]) for k in VIEW_KEYS}
+        rows = [self._worlds[w].step(actions[i], before["pos"][i]) for i, w in enumerate(ids)]
+        after = {k: np.stack([r[k] for r in rows]) for k in VIEW_KEYS}
+        reward, cost, terminated, extras, obs = self._outcome(
+            self._as_f32(before), self._as_f32(after), jnp.asarray(actions), state.info)
+        t = np.asarray(state.t) + 1
+        terminated = np.asarray(terminated)
+        for i, w in enumerate(ids):  # ended episodes' clients may serve the next resets
+            if terminated[i] or t[i] >= self.episode_len:
+                self._worlds[w].free = True
+        return self._state(after, ids, obs, reward, cost, terminated, t, state.key, extras)
+
+    # -- helpers ----------------------------------------------------------------------------
+    @staticmethod
+    def _as_f32(view: dict) -> dict:
+        return {k: jnp.asarray(v, jnp.float32) for k, v in view.items()}
+
+    def _state(self, view, ids, obs, reward, cost, terminated, t, key, extras) -> EnvState:
+        stamps = np.array([self._worlds[w].stamp for w in ids])
+        physics = dict(view, world=np.asarray(ids, np.int64), stamp=stamps)
+        return EnvState(obs=np.asarray(obs, np.float32), reward=np.asarray(reward, np.float32),
+                        cost=np.asarray(cost, np.float32), terminated=np.asarray(terminated),
+                        truncated=np.asarray(t) >= self.episode_len, t=np.asarray(t, np.int32),
+                        key=key, physics=physics, info=extras)
