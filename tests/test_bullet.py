@@ -145,6 +145,23 @@ def test_ended_episodes_free_their_clients_and_can_still_be_stepped():
     assert fresh.t.tolist() == [0, 0]
 
 
+def test_revive_rebuilds_episodes_at_their_start_only():
+    """A checkpointed state, loaded by a new env (its simulations gone): episodes at their start
+    are rebuilt bit for bit; one already stepped is refused."""
+    task = get_task("BallCircle")
+    env = make_env(task)
+    st = env.reset_batch(jax.random.split(jax.random.PRNGKey(5), 3))
+    saved = jax.tree_util.tree_map(np.asarray, st)
+    other = make_env(task)
+    revived = other.revive(saved)
+    acts = np.full((3, 2), 0.5, np.float32)
+    a, b = env.step_batch(st, acts), other.step_batch(revived, acts)
+    np.testing.assert_array_equal(a.obs, b.obs)
+    np.testing.assert_array_equal(a.physics["pos"], b.physics["pos"])
+    with pytest.raises(StaleStateError, match="at their start only"):
+        make_env(task).revive(jax.tree_util.tree_map(np.asarray, a))
+
+
 def test_bad_input():
     env = make_env(get_task("BallRun"))
     st = env.reset_batch(jax.random.split(jax.random.PRNGKey(0), 2))

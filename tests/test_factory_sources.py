@@ -112,9 +112,9 @@ def test_data_cli_unknown_task_and_unwritable_cache(tmp_path, monkeypatch, capsy
 
     assert main(["make", "--task", "CarGoal9"]) == 2
     assert "unknown task 'CarGoal9'" in capsys.readouterr().err
-    assert main(["make", "--task", "BallRun"]) == 2  # registered, but no environment/source
+    assert main(["make", "--task", "CarRun"]) == 2  # registered, but no environment/source
     err = capsys.readouterr().err
-    assert "no data source for task 'BallRun'" in err and "--dataset FILE" in err
+    assert "no data source for task 'CarRun'" in err and "--dataset FILE" in err
     blocker = tmp_path / "file"
     blocker.write_text("")
     monkeypatch.setenv("R2PAC_DATA_DIR", str(blocker / "sub"))

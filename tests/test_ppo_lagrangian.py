@@ -75,6 +75,13 @@ def test_dsrl_schedule_and_its_errors():
     assert (half.schedule.start_step, half.schedule.end_step) == (2_000_000, 10_000_000)
     with pytest.raises(DatasetError, match="minibatches"):
         collect.make_spec(t, ppo=dict(num_envs=3, rollout_len=7, minibatches=4))
+    ball = collect.make_spec(get_task("BallCircle"))  # DSRL's rising Bullet schedule
+    assert (ball.physics, ball.env_steps, ball.cost_cap, ball.trajectories) == (
+        "bullet", 10_000_000, 80.0, 886)
+    assert ball.schedule.limit(0) == 5.0 and ball.schedule.limit(10_000_000) == 200.0
+    assert ball.steps_per_update == 10_000 and ball.ppo.rollout_len == 200
+    with pytest.raises(DatasetError, match="multiple of BallCircle's episode length"):
+        collect.make_spec(get_task("BallCircle"), ppo=dict(rollout_len=100))
 
 
 def _arrays(path):
@@ -82,9 +89,15 @@ def _arrays(path):
         return {k: np.asarray(f[k]) for k in f.keys()}
 
 
+# BallRun: pybullet's simulations live outside the state; a resumed generation rebuilds them
+BALL = dict(trajectories=4, env_steps=2 * 100 * 3, ppo=dict(num_envs=2, rollout_len=100,
+                                                           hidden=(16,), minibatches=2, epochs=1),
+            checkpoint_every=1, progress=False, log=lambda m: None)
+
+
 @pytest.mark.parametrize("name,kw", [("ReachAvoid", dict(RA, env_steps=16 * 80 * 5,
                                                           checkpoint_every=2)),
-                                     ("HopperVelocity", HOP)])
+                                     ("HopperVelocity", HOP), ("BallRun", BALL)])
 def test_resumed_generation_equals_an_uninterrupted_one(name, kw, tmp_path):
     task = get_task(name)
     full = collect.generate_learned(task, tmp_path / "full.hdf5", **kw)
@@ -182,8 +195,8 @@ def test_data_cli_errors(tmp_path, monkeypatch, capsys):
     with pytest.raises(SystemExit):
         main(["make", "--task", "ReachAvoid", "--source", "sac"])
     assert "invalid choice: 'sac'" in capsys.readouterr().err
-    assert main(["make", "--task", "BallRun", "--source", "ppo-lagrangian"]) == 2
-    assert "no data source for task 'BallRun'" in capsys.readouterr().err
+    assert main(["make", "--task", "CarRun", "--source", "ppo-lagrangian"]) == 2
+    assert "no data source for task 'CarRun'" in capsys.readouterr().err
     assert main(["make", "--task", "CarGoal2", "--source", "ppo-lagrangian", "--budget", "0"]) \
         == 2
     assert "--budget and --trajectories must be >= 1" in capsys.readouterr().err

@@ -19,10 +19,11 @@ def main(argv=None) -> int:
                     help="trajectories in the file (default: the source's; DSRL's size for "
                          "ppo-lagrangian)")
     mk.add_argument("--seed", type=int, default=0)
-    mk.add_argument("--source", default="scripted", choices=SOURCE_KINDS,
-                    help="scripted (each task's controllers, data v1) | ppo-lagrangian (DSRL's "
-                         "recipe: an observation-based Lagrangian agent under DSRL's cost "
-                         "schedule, data v2; resumable)")
+    mk.add_argument("--source", default=None, choices=SOURCE_KINDS,
+                    help="scripted (each task's controllers, data v1; the default where a task "
+                         "has them) | ppo-lagrangian (DSRL's recipe: an observation-based "
+                         "Lagrangian agent under DSRL's cost schedule, data v2; resumable; the "
+                         "default of the tasks without scripted controllers, e.g. BallRun)")
     mk.add_argument("--budget", type=int, default=None,
                     help="ppo-lagrangian: RL budget in env steps (default DSRL's, e.g. 22M for "
                          "CarGoal2); the schedule scales with it")
@@ -31,8 +32,8 @@ def main(argv=None) -> int:
     mk.add_argument("--checkpoint-every", type=int, default=10,
                     help="ppo-lagrangian: updates between checkpoints")
     mk.add_argument("--physics", default="auto",
-                    help="ppo-lagrangian: auto (C MuJoCo on a CPU, MJX on an accelerator) | "
-                         "mujoco | mjx")
+                    help="ppo-lagrangian: auto (C MuJoCo on a CPU, MJX on an accelerator; "
+                         "pybullet for the Bullet tasks) | mujoco | mjx | bullet")
     mk.add_argument("--force", action="store_true",
                     help="discard an existing file (and a generation's partial state) first")
     ck = sub.add_parser("check", help="coverage, temptation and imitability of a dataset file "
@@ -54,6 +55,9 @@ def main(argv=None) -> int:
 
     try:
         task = get_task(args.task)
+        if args.source is None:
+            args.source = ("ppo-lagrangian" if task.collection is not None and task.has_env
+                           and not factory.has_scripted_source(task) else "scripted")
         n = args.trajectories or (task.collection.trajectories
                                   if args.source == "ppo-lagrangian" and task.collection
                                   else factory.default_trajectories(task))

@@ -50,11 +50,15 @@ def _source(task: TaskSpec, kind: str, physics: str = "auto") -> dict:
     if kind not in SOURCE_KINDS:
         raise FactoryError(f"unknown data source {kind!r}; choose one of {', '.join(SOURCE_KINDS)}")
     srcs = _sources()
-    if task.name not in srcs:
+    learned = task.collection is not None and task.has_env
+    if task.name not in srcs and not learned:
         raise FactoryError(f"no data source for task {task.name!r} yet; tasks with one: "
-                           f"{', '.join(sorted(srcs))}. Pass --dataset FILE or put DSRL's file "
-                           "in $DSRL_DATASET_DIR")
+                           f"{', '.join(sorted(n for n in _all_names() if n != task.name))}. "
+                           "Pass --dataset FILE or put DSRL's file in $DSRL_DATASET_DIR")
     if kind == "scripted":
+        if task.name not in srcs:
+            raise FactoryError(f"task {task.name} has no scripted data source (its data come "
+                               "from the learned recipe only): use --source ppo-lagrangian")
         return srcs[task.name]
     if task.collection is None:
         raise FactoryError(f"task {task.name} has no learned-behaviour recipe yet; use "
@@ -62,7 +66,19 @@ def _source(task: TaskSpec, kind: str, physics: str = "auto") -> dict:
     return dict(name="ppo-lagrangian", default_trajectories=task.collection.trajectories)
 
 
+def _all_names() -> list[str]:
+    from r2pac_jax.tasks import TASKS
+
+    return sorted(set(_sources()) | {n for n, t in TASKS.items()
+                                     if t.collection is not None and t.has_env})
+
+
 def has_source(task: TaskSpec) -> bool:
+    """A scripted source, or the learned recipe on an environment."""
+    return task.name in _sources() or (task.collection is not None and task.has_env)
+
+
+def has_scripted_source(task: TaskSpec) -> bool:
     return task.name in _sources()
 
 

@@ -109,8 +109,14 @@ def make_spec(task: TaskSpec, trajectories: Optional[int] = None, env_steps: Opt
     cfg = pl.PPOLagConfig(**{**dict(c.ppo), **(ppo or {})})
     cfg.validate()
     if physics == "auto":
-        physics = "auto" if task.family == "demo" else "mujoco" if jax.default_backend() == "cpu" \
-            else "mjx"
+        physics = ("auto" if task.family == "demo" else "bullet" if task.family == "bullet"
+                   else "mujoco" if jax.default_backend() == "cpu" else "mjx")
+    if physics == "bullet" and cfg.rollout_len % task.episode_len:
+        # a pybullet episode lives in its client: a resumed generation rebuilds episodes at
+        # their start only, so every rollout must end on episode boundaries
+        raise DatasetError(f"PPO-Lagrangian on the bullet backend: rollout_len "
+                           f"({cfg.rollout_len}) must be a multiple of {task.name}'s episode "
+                           f"length ({task.episode_len})")
     return GenSpec(task.name, int(seed), n, budget, physics, sched, float(c.cost_cap),
                    float(c.reward_min), cfg, int(checkpoint_every))
 
@@ -275,6 +281,8 @@ class Generation:
         env_state = state["env"]
         if self.env.is_jax:
             env_state = jax.tree_util.tree_map(jnp.asarray, env_state)
+        elif hasattr(self.env, "revive"):  # simulations held outside the state (bullet)
+            env_state = self.env.revive(env_state)
         bar = None
         if self.progress:
             from tqdm import tqdm

@@ -199,7 +199,34 @@ class BulletEnv:
         extras, obs = self._start(self._as_f32(view), extras)
         zeros = np.zeros(n, np.float32)
         return self._state(view, ids, obs, zeros, zeros, np.zeros(n, bool), np.zeros(n, np.int32),
-                           keys, extras)
+                           keys, extras, np.asarray(poses["pos"], np.float64))
+
+    def revive(self, state: EnvState) -> EnvState:
+        """The state with its simulations rebuilt where they are gone (a generation resumed in
+        a new process): an episode still at its start is reset again from its sampled position,
+        which gives the same simulation bit for bit (checked); one stepped already cannot be
+        rebuilt (StaleStateError)."""
+        ids, stamps = np.asarray(state.physics["world"]), np.asarray(state.physics["stamp"])
+        gone = np.array([w >= len(self._worlds) or self._worlds[w].stamp != s
+                         for w, s in zip(ids, stamps)], bool)
+        if not gone.any():
+            return state
+        t = np.asarray(state.t)
+        if (t[gone] != 0).any():
+            raise StaleStateError(
+                f"{int((t[gone] != 0).sum())} episode(s) of this state were stepped in a "
+                "simulation that is gone (another process): the bullet backend rebuilds episodes "
+                "at their start only; checkpoint at episode boundaries")
+        idx = np.flatnonzero(gone)
+        fresh = self.reset_to(dict(pos=np.asarray(state.physics["start"])[idx]))
+        for k in VIEW_KEYS:
+            if not np.array_equal(fresh.physics[k], np.asarray(state.physics[k])[idx]):
+                raise RuntimeError(f"a rebuilt bullet episode differs from its record ({k}): "
+                                   "the simulation is not reproducible on this machine")
+        physics = {k: np.array(v, copy=True) for k, v in state.physics.items()}
+        for k in ("world", "stamp"):
+            physics[k][idx] = fresh.physics[k]
+        return state.replace(physics=physics)
 
     def step_batch(self, state: EnvState, actions) -> EnvState:
         ids = np.asarray(state.physics["world"])
@@ -223,16 +250,19 @@ class BulletEnv:
         for i, w in enumerate(ids):  # ended episodes' clients may serve the next resets
             if terminated[i] or t[i] >= self.episode_len:
                 self._worlds[w].free = True
-        return self._state(after, ids, obs, reward, cost, terminated, t, state.key, extras)
+        return self._state(after, ids, obs, reward, cost, terminated, t, state.key, extras,
+                           np.asarray(state.physics["start"]))
 
     # -- helpers ----------------------------------------------------------------------------
     @staticmethod
     def _as_f32(view: dict) -> dict:
         return {k: jnp.asarray(v, jnp.float32) for k, v in view.items()}
 
-    def _state(self, view, ids, obs, reward, cost, terminated, t, key, extras) -> EnvState:
+    def _state(self, view, ids, obs, reward, cost, terminated, t, key, extras,
+               start) -> EnvState:
         stamps = np.array([self._worlds[w].stamp for w in ids])
-        physics = dict(view, world=np.asarray(ids, np.int64), stamp=stamps)
+        # start: each episode's sampled position (float64), from which `revive` rebuilds it
+        physics = dict(view, world=np.asarray(ids, np.int64), stamp=stamps, start=start)
         return EnvState(obs=np.asarray(obs, np.float32), reward=np.asarray(reward, np.float32),
                         cost=np.asarray(cost, np.float32), terminated=np.asarray(terminated),
                         truncated=np.asarray(t) >= self.episode_len, t=np.asarray(t, np.int32),
