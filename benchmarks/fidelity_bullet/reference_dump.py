@@ -5,6 +5,7 @@ for our `bullet` backend to replay (tests/test_bullet_fidelity.py, compare.py).
     REF_PY reference_dump.py rollout ENV_ID SEED EPISODES OUT.npz
     REF_PY reference_dump.py resets ENV_ID SEED N OUT.npz
     REF_PY reference_dump.py speed ENV_ID STEPS      (prints env steps/s, one env, random actions)
+    REF_PY reference_dump.py leak ENV_ID             (prints 4 one-step episodes of one instance)
 
 `rollout`: EPISODES consecutive episodes of one environment instance (`np.random.seed(SEED)`,
 the original's reset noise comes from the global generator), full length. Episode e takes
@@ -150,12 +151,27 @@ def speed(env_id, steps):
     print(f"{steps / (time.perf_counter() - t0):.0f}")
 
 
+def leak(env_id):
+    """Four episodes of one step each, the same sampled position and action: the original's
+    episodes after the first restore a saved state, but pybullet keeps the contact manifold of
+    the episode before, so the first step's velocity alternates."""
+    env = gymnasium.make(env_id)
+    a = np.array([0.3, -0.7], np.float32)
+    for i in range(4):
+        np.random.seed(5)
+        env.reset()
+        obs, *_ = env.step(a)
+        print(i, "velocity after one step:", np.round(obs[2:4] / 0.2, 8))
+
+
 if __name__ == "__main__":
     cmd, env_id = sys.argv[1], sys.argv[2]
     if cmd == "rollout":
         rollout(env_id, int(sys.argv[3]), int(sys.argv[4]), sys.argv[5])
     elif cmd == "resets":
         resets(env_id, int(sys.argv[3]), int(sys.argv[4]), sys.argv[5])
+    elif cmd == "leak":
+        leak(env_id)
     elif cmd == "speed":
         speed(env_id, int(sys.argv[3]))
     else:

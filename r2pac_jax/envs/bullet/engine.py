@@ -2,7 +2,8 @@
 stepped in batch from Python on the CPU (`is_jax = False`). The faithful path for the
 Bullet-Safety-Gym tasks: it repeats the original's calls in the original's order (physics
 parameters, bodies loaded in the same order, the reset's restore / pose / save / step sequence,
-one `stepSimulation` of `frame_skip` sub-steps per control step), and runs the tasks' JAX rules
+one `stepSimulation` of `frame_skip` sub-steps per control step; every episode starts as the
+original's first episode after construction, see `_World.reset`), and runs the tasks' JAX rules
 (`tasks.py`) jitted and vmapped over the batch, as `physics.MujocoEnv` does for MuJoCo.
 
 Unlike C MuJoCo, a pybullet world cannot be stepped from a state vector: each episode's
@@ -47,7 +48,14 @@ class _World:
 
     def __init__(self, pb, task):
         self.pb, self.task, self.robot = pb, task, task.robot
-        c = self.cid = pb.connect(pb.DIRECT)
+        self.cid = pb.connect(pb.DIRECT)
+        self.build()
+        self.stamp = 0
+        self.free = True
+
+    def build(self) -> None:
+        """Physics parameters and bodies as the original's constructor sets them."""
+        pb, task, c = self.pb, self.task, self.cid
         pb.setPhysicsEngineParameter(fixedTimeStep=task.time_step * task.frame_skip,
                                      numSolverIterations=task.solver_iterations,
                                      deterministicOverlappingPairs=1,
@@ -66,9 +74,7 @@ class _World:
         # (the original's visual-only bodies, without collision shapes, are left out)
         self.body = self.robot.load(pb, c)
         self.robot.setup(pb, c, self.body)
-        self.saved = -1
-        self.stamp = 0
-        self.free = True
+        self.stepped = False
 
     def read(self) -> dict:
         pb, c, b = self.pb, self.cid, self.body
@@ -92,12 +98,19 @@ class _World:
         pb.resetBasePositionAndOrientation(self.body, pos, quat, physicsClientId=c)
 
     def reset(self, pose: dict) -> dict:
-        """The original's reset: restore the state saved at the first reset (zero velocities),
-        the robot's and the task's placement, save (first reset only), one simulation step.
-        `pose`: {pos [3]} float64, the task's sampled position."""
+        """The original's first reset after its construction, on a world built afresh: the
+        robot's and the task's placement, one simulation step. `pose`: {pos [3]} float64, the
+        task's sampled position.
+
+        The original's later resets restore a saved state instead; pybullet's restoreState
+        keeps the contact manifolds of the episode before (no manifold existed when the state
+        was saved), whose impulses warm-start the next episode's first steps (0.16 m/s on the
+        ball's first step, benchmarks/FIDELITY.md): an episode would depend on the one before
+        it in the same client. A world rebuilt for every episode (1-4 ms) has no history."""
         pb, c = self.pb, self.cid
-        if self.saved >= 0:
-            pb.restoreState(self.saved, physicsClientId=c)
+        if self.stepped:
+            pb.resetSimulation(physicsClientId=c)
+            self.build()
         self.robot.specific_reset(self)
         pos = np.asarray(pose["pos"], np.float64)
         self.set_position(pos)
@@ -105,9 +118,8 @@ class _World:
         if yaw is not None:
             self.set_orientation(pb.getQuaternionFromEuler([0.0, 0.0, yaw]))
         before = np.array(pb.getBasePositionAndOrientation(self.body, physicsClientId=c)[0])
-        if self.saved < 0:
-            self.saved = pb.saveState(physicsClientId=c)
         pb.stepSimulation(physicsClientId=c)
+        self.stepped = True
         view = self.read()
         view["dpos"] = view["pos"] - before
         self.stamp += 1
