@@ -114,6 +114,15 @@ def _physics_for(task, backend):
     return "jax" if task.family == "demo" else backend
 
 
+def _serves(task, backend) -> bool:
+    """Whether `backend` simulates `task` (pure JAX: the demo; bullet: the Bullet tasks)."""
+    if task.family == "demo":
+        return backend == "jax"
+    if task.family == "bullet":
+        return backend == "bullet"
+    return backend in ("mujoco", "mjx")
+
+
 def _merge_lanes(state, fresh, idx):
     """`state` (numpy leaves [B, ...]) with lanes `idx` taken from `fresh`'s first len(idx)."""
     def put(a, b):
@@ -128,13 +137,17 @@ def _bucket(n: int) -> int:
     return 1 << int(np.ceil(np.log2(max(n, 1))))
 
 
-def step_c_mujoco(task, batch, policy, steps, warmup=3):
-    """C MuJoCo: `step_batch` in a Python loop; ended episodes are reset (only those lanes, in
-    power-of-two buckets so that the jitted reset functions compile once per bucket)."""
-    env = task.make_env(physics="mujoco")
+def step_c_mujoco(task, batch, policy, steps, warmup=3, physics="mujoco"):
+    """C MuJoCo (or pybullet, `physics="bullet"`): `step_batch` in a Python loop; ended
+    episodes are reset (only those lanes; for C MuJoCo in power-of-two buckets so that the
+    jitted reset functions compile once per bucket; pybullet resets exactly the ended lanes,
+    since each reset takes a simulation of its own)."""
+    env = task.make_env(physics=physics)
+    bucket = _bucket if physics == "mujoco" else (lambda n: n)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     state = env.reset_batch(keys)
-    if steps + warmup >= task.episode_len or task.family != "navigation":
+    if physics == "mujoco" and (steps + warmup >= task.episode_len
+                                or task.family != "navigation"):
         # compile the reset buckets up front (up to 64 lanes ending in one step; more would
         # compile inside the timing: not seen with these batches)
         for b in range(int(np.log2(min(_bucket(batch), 64))) + 1):
@@ -158,7 +171,7 @@ def step_c_mujoco(task, batch, policy, steps, warmup=3):
         if done.any():
             idx = np.flatnonzero(done)
             resets += len(idx)
-            k = jax.random.split(jax.random.PRNGKey(1000 + t), _bucket(len(idx)))
+            k = jax.random.split(jax.random.PRNGKey(1000 + t), bucket(len(idx)))
             state = _merge_lanes(state, env.reset_batch(k), idx)
         return state
 
@@ -219,15 +232,13 @@ def cmd_stepping(args):
     for name in args.tasks:
         task = get_task(name)
         for backend in args.backends:
-            if task.family == "demo" and backend != "jax":
-                continue
-            if task.family != "demo" and backend == "jax":
+            if not _serves(task, backend):
                 continue
             for batch in args.batches:
                 for policy in args.policies:
                     steps = args.steps or _default_steps(task, backend, batch, policy)
-                    if backend == "mujoco":
-                        r = step_c_mujoco(task, batch, policy, steps)
+                    if backend in ("mujoco", "bullet"):
+                        r = step_c_mujoco(task, batch, policy, steps, physics=backend)
                     else:
                         r = step_jax(task, backend, batch, policy, steps)
                     emit(dict(kind="stepping", task=task.name, backend=backend, batch=batch,
@@ -241,7 +252,7 @@ def _default_steps(task, backend, batch, policy):
         return 200 if policy == "none" else int(np.clip(2000 // batch, 5, 100))
     if backend == "mjx":
         return 20 if policy == "none" else 10
-    per = 4000 if task.family == "velocity" else 1500
+    per = 4000 if task.family in ("velocity", "bullet") else 1500
     if policy == "r2pac":
         per //= 4
     return int(np.clip(per * 20 // batch, 10, 400))
@@ -258,7 +269,7 @@ def cmd_protocol(args):
         task = get_task(name)
         for backend in args.backends:
             physics = _physics_for(task, backend)
-            if (task.family == "demo") != (backend == "jax"):
+            if not _serves(task, backend):
                 continue
             for policy in args.policies:
                 act, pp, desc = get_policy(task, policy)
@@ -290,24 +301,28 @@ def cmd_protocol(args):
 # The original simulator
 
 
-def reference_python() -> str:
-    venv = Path(os.environ.get("R2PAC_SG_VENV", ROOT / ".venv-safety-gymnasium"))
+def reference_python(family: str = "navigation") -> str:
+    if family == "bullet":
+        venv = Path(os.environ.get("R2PAC_BSG_VENV", ROOT / ".venv-bullet-safety-gym"))
+        how = "../shared/reference/install-bullet-safety-gym.sh or set R2PAC_BSG_VENV"
+    else:
+        venv = Path(os.environ.get("R2PAC_SG_VENV", ROOT / ".venv-safety-gymnasium"))
+        how = "../shared/reference/install-safety-gymnasium.sh or set R2PAC_SG_VENV"
     py = venv / "bin" / "python"
     if not py.exists():
-        raise SystemExit(f"reference virtualenv not found at {venv}: build it with "
-                         "../shared/reference/install-safety-gymnasium.sh or set R2PAC_SG_VENV")
+        raise SystemExit(f"reference virtualenv not found at {venv}: build it with {how}")
     return str(py)
 
 
 def cmd_reference(args):
-    py = reference_python()
     script = str(Path(__file__).with_name("env_speed_reference.py"))
     for name in args.tasks:
         task = get_task(name)
         if task.gym_id is None:
             continue
+        py = reference_python(task.family)
         runs = [["--mode", "seq", "--episodes",
-                 str(args.episodes or (20 if task.family == "velocity" else 3))]]
+                 str(args.episodes or (3 if task.family == "navigation" else 20))]]
         if args.workers > 1:
             steps = 2000 if task.family == "velocity" else 300
             runs.append(["--mode", "async", "--workers", str(args.workers), "--steps",

@@ -1,5 +1,6 @@
-"""Runs INSIDE the reference virtualenv (Safety-Gymnasium 0.4.0, MuJoCo 2.3.3): times the
-original simulator's own loop with uniform-random actions and prints one JSON line.
+"""Runs INSIDE a reference virtualenv (Safety-Gymnasium 0.4.0 on MuJoCo 2.3.3, or
+Bullet-Safety-Gym 1.4.0 on pybullet 3.2.7 for the Safety{Ball,Car,Drone,Ant}{Run,Circle} ids):
+times the original simulator's own loop with uniform-random actions, prints one JSON line.
 
     REF_PY env_speed_reference.py ENV_ID [--mode seq|async] [--episodes N] [--steps S]
                                          [--workers K] [--seed SEED]
@@ -20,7 +21,6 @@ warnings.filterwarnings("ignore")
 
 import gymnasium  # noqa: E402
 import numpy as np  # noqa: E402
-import safety_gymnasium  # noqa: E402,F401  (registers the Safety*Gymnasium ids)
 
 
 def seq(env_id, episodes, seed):
@@ -74,12 +74,20 @@ def main():
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
-    import mujoco
+    if "Gymnasium" in args.env_id:
+        import mujoco
+        import safety_gymnasium as sim  # registers the Safety*Gymnasium ids
 
+        engine = dict(mujoco=mujoco.__version__)
+    else:
+        import bullet_safety_gym as sim  # registers the Bullet ids
+        import pybullet
+
+        engine = dict(pybullet=pybullet.getAPIVersion())
     out = (seq(args.env_id, args.episodes, args.seed) if args.mode == "seq" else
            vec(args.env_id, args.workers, args.steps, args.seed))
-    out.update(env_id=args.env_id, simulator="safety_gymnasium " + safety_gymnasium.__version__,
-               mujoco=mujoco.__version__)
+    out.update(env_id=args.env_id,
+               simulator=f"{sim.__name__} {getattr(sim, '__version__', '')}".strip(), **engine)
     print(json.dumps(out), flush=True)
 
 
