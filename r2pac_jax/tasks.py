@@ -223,7 +223,7 @@ _bullet("BallCircle", 200, 8, 2, 881.46337890625, 0.38312244415283203, 886, 0.85
 _bullet("CarCircle", 300, 8, 2, 534.3060913085938, 3.484419822692871, 1450, 0.9, 1.0)
 _bullet("DroneCircle", 300, 18, 4, 996.38916015625, 207.794189453125, 1923, 0.7, 1.0)
 # Their environments: r2pac_jax/envs/bullet (pybullet, `--physics bullet`), robot by robot.
-for _n in ("BallRun", "BallCircle"):
+for _n in ("BallRun", "BallCircle", "CarRun", "CarCircle"):
     set_env_factory(_n, "r2pac_jax.envs.bullet:make_env")
 
 # --------------------------------------------------------------------------------------------

@@ -111,7 +111,7 @@ class _World:
         if self.stepped:
             pb.resetSimulation(physicsClientId=c)
             self.build()
-        self.robot.specific_reset(self)
+        self.robot.specific_reset(self, pose)
         pos = np.asarray(pose["pos"], np.float64)
         self.set_position(pos)
         yaw = self.task.yaw(pb.getBasePositionAndOrientation(self.body, physicsClientId=c)[0])
@@ -197,9 +197,12 @@ class BulletEnv:
         return self.reset_to({k: np.asarray(v, np.float64) for k, v in pose.items()}, extras, keys)
 
     def reset_to(self, poses: dict, extras: Optional[dict] = None, keys=None) -> EnvState:
-        """Start episodes from given sampled positions: `pos` [n, 3] float64 (the original's
-        `specific_reset` draws them; the orientation and the rest follow as it sets them)."""
+        """Start episodes from given sampled positions: `pos` [n, 3] float64 and, for robots
+        with joints, `joints` [n, n_joints] (the original's `specific_reset` draws them; the
+        orientation and the rest follow as it sets them)."""
         n = np.asarray(poses["pos"]).shape[0]
+        if "joints" not in poses:
+            poses = dict(poses, joints=np.zeros((n, self.task.robot.n_joints)))
         if extras is None:
             extras = jax.vmap(lambda _: self.task.empty_extras())(jnp.arange(n))
         if keys is None:
@@ -211,7 +214,8 @@ class BulletEnv:
         extras, obs = self._start(self._as_f32(view), extras)
         zeros = np.zeros(n, np.float32)
         return self._state(view, ids, obs, zeros, zeros, np.zeros(n, bool), np.zeros(n, np.int32),
-                           keys, extras, np.asarray(poses["pos"], np.float64))
+                           keys, extras, np.asarray(poses["pos"], np.float64),
+                           np.asarray(poses["joints"], np.float64))
 
     def revive(self, state: EnvState) -> EnvState:
         """The state with its simulations rebuilt where they are gone (a generation resumed in
@@ -230,7 +234,8 @@ class BulletEnv:
                 "simulation that is gone (another process): the bullet backend rebuilds episodes "
                 "at their start only; checkpoint at episode boundaries")
         idx = np.flatnonzero(gone)
-        fresh = self.reset_to(dict(pos=np.asarray(state.physics["start"])[idx]))
+        fresh = self.reset_to(dict(pos=np.asarray(state.physics["start"])[idx],
+                                   joints=np.asarray(state.physics["start_joints"])[idx]))
         for k in VIEW_KEYS:
             if not np.array_equal(fresh.physics[k], np.asarray(state.physics[k])[idx]):
                 raise RuntimeError(f"a rebuilt bullet episode differs from its record ({k}): "
@@ -263,7 +268,8 @@ class BulletEnv:
             if terminated[i] or t[i] >= self.episode_len:
                 self._worlds[w].free = True
         return self._state(after, ids, obs, reward, cost, terminated, t, state.key, extras,
-                           np.asarray(state.physics["start"]))
+                           np.asarray(state.physics["start"]),
+                           np.asarray(state.physics["start_joints"]))
 
     # -- helpers ----------------------------------------------------------------------------
     @staticmethod
@@ -271,10 +277,12 @@ class BulletEnv:
         return {k: jnp.asarray(v, jnp.float32) for k, v in view.items()}
 
     def _state(self, view, ids, obs, reward, cost, terminated, t, key, extras,
-               start) -> EnvState:
+               start, start_joints) -> EnvState:
         stamps = np.array([self._worlds[w].stamp for w in ids])
-        # start: each episode's sampled position (float64), from which `revive` rebuilds it
-        physics = dict(view, world=np.asarray(ids, np.int64), stamp=stamps, start=start)
+        # start: each episode's sampled position and joints (float64), from which `revive`
+        # rebuilds it
+        physics = dict(view, world=np.asarray(ids, np.int64), stamp=stamps, start=start,
+                       start_joints=start_joints)
         return EnvState(obs=np.asarray(obs, np.float32), reward=np.asarray(reward, np.float32),
                         cost=np.asarray(cost, np.float32), terminated=np.asarray(terminated),
                         truncated=np.asarray(t) >= self.episode_len, t=np.asarray(t, np.int32),

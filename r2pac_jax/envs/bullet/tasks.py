@@ -72,6 +72,7 @@ class BulletTask:
         """The reset's sampled position: (pose {pos [3]}, extras). The orientation follows from
         it as the original sets it (`yaw`; the bullet backend repeats the original's calls)."""
         z = self.robot.init_xyz[2]
+        key, kj = jax.random.split(key)
         if self.kind == "run":
             xy = jax.random.uniform(key, (2,), minval=-0.01, maxval=0.01)
         else:
@@ -81,7 +82,7 @@ class BulletTask:
             a = jax.random.uniform(ka, (), minval=0.0, maxval=2 * jnp.pi)
             xy = r * jnp.array([jnp.cos(a), jnp.sin(a)])
         pos = jnp.concatenate([xy, jnp.array([z])])
-        return dict(pos=pos), self.empty_extras()
+        return dict(pos=pos, joints=self.robot.sample_joints(kj)), self.empty_extras()
 
     def yaw(self, pos: np.ndarray) -> Optional[float]:
         """The reset's heading for a sampled position (float64, the original's arithmetic):
