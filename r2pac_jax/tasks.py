@@ -261,6 +261,10 @@ for _n, _es, _ee, _ep, _cap, _traj in [
 set_collection("BallRun", CollectionSpec(5, 100, 100, 900, 1000, 80, 940))
 set_collection("BallCircle", CollectionSpec(5, 200, 100, 900, 1000, 80, 886,
                                             ppo=(("num_envs", 50), ("rollout_len", 200))))
+set_collection("CarRun", CollectionSpec(5, 100, 100, 900, 1000, 40, 651,
+                                        ppo=(("num_envs", 50), ("rollout_len", 200))))
+set_collection("CarCircle", CollectionSpec(5, 100, 100, 900, 1000, 100, 1450,
+                                           ppo=(("num_envs", 33), ("rollout_len", 300))))
 set_collection("ReachAvoid", CollectionSpec(
     8.0, 1.0, 30, 270, 300, cost_cap=80.0, trajectories=1000, steps_per_epoch=64 * 80,
     ppo=(("num_envs", 64), ("rollout_len", 80))))

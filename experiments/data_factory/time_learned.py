@@ -27,10 +27,13 @@ def main() -> None:
     ap.add_argument("--steps-per-update", type=int, default=10_000)
     ap.add_argument("--updates", type=int, default=4)
     ap.add_argument("--physics", default="auto")
+    ap.add_argument("--rollout-len", type=int, default=None,
+                    help="steps per env per update (default steps-per-update / envs; the "
+                         "bullet backend needs a multiple of the episode length)")
     args = ap.parse_args()
     task = get_task(args.task)
     for n in (int(x) for x in args.envs.split(",")):
-        t_len = args.steps_per_update // n
+        t_len = args.rollout_len or args.steps_per_update // n
         d = Path(tempfile.mkdtemp())
         t0 = time.time()
         try:

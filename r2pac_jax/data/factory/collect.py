@@ -51,8 +51,9 @@ CPU2_STEPS_PER_S = {
     "PointButton1": 7041, "PointButton2": 5663, "PointPush1": 4784, "PointPush2": 4958,
     "AntVelocity": 5331, "HalfCheetahVelocity": 18362, "HopperVelocity": 6756,
     "SwimmerVelocity": 18138, "Walker2dVelocity": 5089,
-    # bullet backend, beside a training run (2026-12-02): BallRun 100 x 100, BallCircle 50 x 200
-    "BallRun": 6976, "BallCircle": 4864}
+    # bullet backend, beside other runs (2026-12-02, load 3-4): BallRun 100 x 100, BallCircle
+    # 50 x 200, CarRun 50 x 200, CarCircle 33 x 300
+    "BallRun": 6976, "BallCircle": 4864, "CarRun": 1370, "CarCircle": 752}
 
 
 def estimate_hours(task: TaskSpec, env_steps: Optional[int] = None) -> Optional[float]:
