@@ -256,8 +256,7 @@ for _n, _es, _ee, _ep, _cap, _traj in [
     set_collection(_n, CollectionSpec(300, 10, _es, _ee, _ep, _cap, _traj))
 # Bullet-Safety-Gym (the same script's Bullet configs; cost caps and counts from DSRL's file
 # names, e.g. SafetyBallRun-v0-80-940.hdf5). The limits *rise*; reward_min is DSRL's -9999.
-# BallCircle's episodes (200 steps) fill its rollouts exactly: the bullet backend resumes a
-# generation only at episode boundaries (envs/bullet/engine.py).
+# Rollouts of whole episodes (10k steps per update as DSRL's epoch).
 set_collection("BallRun", CollectionSpec(5, 100, 100, 900, 1000, 80, 940))
 set_collection("BallCircle", CollectionSpec(5, 200, 100, 900, 1000, 80, 886,
                                             ppo=(("num_envs", 50), ("rollout_len", 200))))

@@ -114,12 +114,6 @@ def make_spec(task: TaskSpec, trajectories: Optional[int] = None, env_steps: Opt
     if physics == "auto":
         physics = ("auto" if task.family == "demo" else "bullet" if task.family == "bullet"
                    else "mujoco" if jax.default_backend() == "cpu" else "mjx")
-    if physics == "bullet" and cfg.rollout_len % task.episode_len:
-        # a pybullet episode lives in its client: a resumed generation rebuilds episodes at
-        # their start only, so every rollout must end on episode boundaries
-        raise DatasetError(f"PPO-Lagrangian on the bullet backend: rollout_len "
-                           f"({cfg.rollout_len}) must be a multiple of {task.name}'s episode "
-                           f"length ({task.episode_len})")
     return GenSpec(task.name, int(seed), n, budget, physics, sched, float(c.cost_cap),
                    float(c.reward_min), cfg, int(checkpoint_every))
 

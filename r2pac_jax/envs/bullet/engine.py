@@ -11,7 +11,9 @@ simulation lives in its client. So an `EnvState` of this backend names its clien
 (`physics["world"]`) with a stamp per step (`physics["stamp"]`), and stepping a state that is not
 the latest of its episode raises `StaleStateError`. A client is recycled by a later reset once
 its episode has ended (terminated or truncated) or has been `release`d; stepping an ended
-episode further (as the evaluation loop does while other lanes run) is allowed until then.
+episode further (as the evaluation loop does while other lanes run) is allowed until then. A
+state saved and loaded in another process (a resumed data generation) gets its simulations back
+by `revive`, which replays each episode's recorded actions from its start.
 """
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ from r2pac_jax.envs.bullet.robots import ASSETS
 from r2pac_jax.envs.base import BackendUnavailableError
 
 INSTALL = "pip install -e '.[bullet]' (or pip install pybullet==3.2.7)"
-VIEW_KEYS = ("pos", "quat", "vel", "angvel", "dpos")
+BASE_KEYS = ("pos", "quat", "vel", "angvel", "dpos")
 
 
 class StaleStateError(RuntimeError):
@@ -81,7 +83,7 @@ class _World:
         pos, quat = pb.getBasePositionAndOrientation(b, physicsClientId=c)
         vel, ang = pb.getBaseVelocity(b, physicsClientId=c)
         return dict(pos=np.array(pos), quat=np.array(quat), vel=np.array(vel),
-                    angvel=np.array(ang))
+                    angvel=np.array(ang), **self.robot.read(self))
 
     # the original's Body.set_position / set_orientation: each pybullet call is repeated, since
     # the engine stores what it is given (a pose re-read and set again differs in the last bit,
@@ -127,6 +129,8 @@ class _World:
         return view
 
     def step(self, action: np.ndarray, pos_before: np.ndarray) -> dict:
+        """One control step; `action` as the policy gave it (the robot clips it, as the
+        original's agents do)."""
         self.robot.apply_action(self.pb, self.cid, self.body, action)
         self.pb.stepSimulation(physicsClientId=self.cid)
         view = self.read()
@@ -192,6 +196,10 @@ class BulletEnv:
             pass
 
     # -- protocol ---------------------------------------------------------------------------
+    @property
+    def view_keys(self) -> tuple:
+        return BASE_KEYS + tuple(self.task.robot.view_keys)
+
     def reset_batch(self, keys) -> EnvState:
         keys, (pose, extras) = self._split_init(jnp.asarray(keys))
         return self.reset_to({k: np.asarray(v, np.float64) for k, v in pose.items()}, extras, keys)
@@ -210,45 +218,57 @@ class BulletEnv:
         ids = self._acquire(n)
         rows = [self._worlds[w].reset({k: np.asarray(v)[i] for k, v in poses.items()})
                 for i, w in enumerate(ids)]
-        view = {k: np.stack([r[k] for r in rows]) for k in VIEW_KEYS}
+        view = {k: np.stack([r[k] for r in rows]) for k in self.view_keys}
         extras, obs = self._start(self._as_f32(view), extras)
         zeros = np.zeros(n, np.float32)
+        record = dict(start=np.asarray(poses["pos"], np.float64),
+                      start_joints=np.asarray(poses["joints"], np.float64),
+                      actions=np.zeros((n, self.episode_len, self.act_dim), np.float32))
         return self._state(view, ids, obs, zeros, zeros, np.zeros(n, bool), np.zeros(n, np.int32),
-                           keys, extras, np.asarray(poses["pos"], np.float64),
-                           np.asarray(poses["joints"], np.float64))
+                           keys, extras, record)
 
     def revive(self, state: EnvState) -> EnvState:
         """The state with its simulations rebuilt where they are gone (a generation resumed in
-        a new process): an episode still at its start is reset again from its sampled position,
-        which gives the same simulation bit for bit (checked); one stepped already cannot be
-        rebuilt (StaleStateError)."""
+        a new process): each such episode is reset again from its sampled position and joints
+        and replays the actions it took (`physics["actions"]`), which gives the same simulation
+        bit for bit (checked against the state's view)."""
         ids, stamps = np.asarray(state.physics["world"]), np.asarray(state.physics["stamp"])
         gone = np.array([w >= len(self._worlds) or self._worlds[w].stamp != s
                          for w, s in zip(ids, stamps)], bool)
         if not gone.any():
             return state
         t = np.asarray(state.t)
-        if (t[gone] != 0).any():
-            raise StaleStateError(
-                f"{int((t[gone] != 0).sum())} episode(s) of this state were stepped in a "
-                "simulation that is gone (another process): the bullet backend rebuilds episodes "
-                "at their start only; checkpoint at episode boundaries")
+        if (t[gone] > self.episode_len).any():
+            raise StaleStateError("an episode stepped past its end cannot be rebuilt (its "
+                                  "actions after the end were not recorded)")
         idx = np.flatnonzero(gone)
+        acts = np.asarray(state.physics["actions"])[idx]
         fresh = self.reset_to(dict(pos=np.asarray(state.physics["start"])[idx],
                                    joints=np.asarray(state.physics["start_joints"])[idx]))
-        for k in VIEW_KEYS:
-            if not np.array_equal(fresh.physics[k], np.asarray(state.physics[k])[idx]):
-                raise RuntimeError(f"a rebuilt bullet episode differs from its record ({k}): "
+        for j, w in enumerate(fresh.physics["world"]):
+            world, view = self._worlds[w], None
+            for k in range(int(t[idx[j]])):
+                pos = fresh.physics["pos"][j] if view is None else view["pos"]
+                view = world.step(acts[j, k], pos)
+            if view is not None:
+                for key in self.view_keys:
+                    fresh.physics[key][j] = view[key]
+        for key in self.view_keys:
+            if not np.array_equal(fresh.physics[key], np.asarray(state.physics[key])[idx]):
+                raise RuntimeError(f"a rebuilt bullet episode differs from its record ({key}): "
                                    "the simulation is not reproducible on this machine")
         physics = {k: np.array(v, copy=True) for k, v in state.physics.items()}
-        for k in ("world", "stamp"):
-            physics[k][idx] = fresh.physics[k]
+        physics["world"][idx] = fresh.physics["world"]
+        physics["stamp"][idx] = [self._worlds[w].stamp for w in fresh.physics["world"]]
         return state.replace(physics=physics)
 
     def step_batch(self, state: EnvState, actions) -> EnvState:
+        """`actions` [n, act_dim] as the policy gives them: each robot clips them into [-1, 1]
+        for its motors as the original does, and the rules see them as given (the Ant's energy
+        terms read the unclipped action, as the original's)."""
         ids = np.asarray(state.physics["world"])
         n = ids.shape[0]
-        actions = np.clip(check_action(actions, self.act_dim, batch=n), -1.0, 1.0)
+        actions = check_action(actions, self.act_dim, batch=n)
         stamps = np.asarray(state.physics["stamp"])
         for i, w in enumerate(ids):
             if self._worlds[w].stamp != stamps[i]:
@@ -257,19 +277,24 @@ class BulletEnv:
                     "(it was stepped, reset or released since): the bullet backend keeps one "
                     "live simulation per episode; step the state step_batch / reset_batch "
                     "returned last")
-        before = {k: np.asarray(state.physics[k]) for k in VIEW_KEYS}
+        before = {k: np.asarray(state.physics[k]) for k in self.view_keys}
         rows = [self._worlds[w].step(actions[i], before["pos"][i]) for i, w in enumerate(ids)]
-        after = {k: np.stack([r[k] for r in rows]) for k in VIEW_KEYS}
+        after = {k: np.stack([r[k] for r in rows]) for k in self.view_keys}
         reward, cost, terminated, extras, obs = self._outcome(
             self._as_f32(before), self._as_f32(after), jnp.asarray(actions), state.info)
-        t = np.asarray(state.t) + 1
+        t0 = np.asarray(state.t)
+        t = t0 + 1
+        log = np.array(state.physics["actions"], copy=True)
+        inside = t0 < self.episode_len
+        log[np.flatnonzero(inside), t0[inside]] = actions[inside]
         terminated = np.asarray(terminated)
         for i, w in enumerate(ids):  # ended episodes' clients may serve the next resets
             if terminated[i] or t[i] >= self.episode_len:
                 self._worlds[w].free = True
+        record = dict(start=np.asarray(state.physics["start"]),
+                      start_joints=np.asarray(state.physics["start_joints"]), actions=log)
         return self._state(after, ids, obs, reward, cost, terminated, t, state.key, extras,
-                           np.asarray(state.physics["start"]),
-                           np.asarray(state.physics["start_joints"]))
+                           record)
 
     # -- helpers ----------------------------------------------------------------------------
     @staticmethod
@@ -277,12 +302,11 @@ class BulletEnv:
         return {k: jnp.asarray(v, jnp.float32) for k, v in view.items()}
 
     def _state(self, view, ids, obs, reward, cost, terminated, t, key, extras,
-               start, start_joints) -> EnvState:
+               record) -> EnvState:
         stamps = np.array([self._worlds[w].stamp for w in ids])
-        # start: each episode's sampled position and joints (float64), from which `revive`
-        # rebuilds it
-        physics = dict(view, world=np.asarray(ids, np.int64), stamp=stamps, start=start,
-                       start_joints=start_joints)
+        # record: each episode's sampled position and joints (float64) and its actions so far
+        # [n, episode_len, act_dim], from which `revive` rebuilds it
+        physics = dict(view, world=np.asarray(ids, np.int64), stamp=stamps, **record)
         return EnvState(obs=np.asarray(obs, np.float32), reward=np.asarray(reward, np.float32),
                         cost=np.asarray(cost, np.float32), terminated=np.asarray(terminated),
                         truncated=np.asarray(t) >= self.episode_len, t=np.asarray(t, np.int32),

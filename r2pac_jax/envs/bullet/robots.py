@@ -34,6 +34,7 @@ class Robot:
     init_yaw: float
     velocity_limit: float
     n_joints: int = 0
+    view_keys: tuple = ()  # the robot's own view entries beside the base's (see `read`)
 
     def sample_joints(self, key) -> jnp.ndarray:
         """The reset's joint positions [n_joints] (the Car's U(-0.1, 0.1))."""
@@ -51,13 +52,20 @@ class Robot:
         `pose["joints"]` [n_joints] float64)."""
 
     def apply_action(self, pb, cid: int, body: int, action: np.ndarray) -> None:
+        """Drive the motors with `action` as the policy gave it (float32; clipped here, as
+        the original's `Agent.apply_action` clips)."""
         raise NotImplementedError  # pragma: no cover - abstract
+
+    def read(self, world) -> dict:
+        """The robot's own view entries after a simulation step (numpy)."""
+        return {}
 
     # -- rule half (JAX) ----------------------------------------------------------------------
     def observe(self, view: dict) -> jnp.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def specific_reward(self, action: jnp.ndarray) -> jnp.ndarray:
+    def specific_reward(self, view: dict, action: jnp.ndarray) -> jnp.ndarray:
+        """The robot's reward term after a step (`action` unclipped, as given)."""
         return jnp.zeros((), jnp.float32)
 
     def alive(self, view: dict) -> jnp.ndarray:
@@ -83,6 +91,7 @@ class Ball(Robot):
 
     def apply_action(self, pb, cid, body, action):
         # the original pushes at the sphere's current centre, in world coordinates (no torque)
+        action = np.clip(action, -1.0, 1.0)
         pos, _ = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
         force = np.array([action[0], action[1], 0.0], np.float64) * self.max_force
         pb.applyExternalForce(body, -1, force, pos, pb.WORLD_FRAME, physicsClientId=cid)
@@ -91,8 +100,8 @@ class Ball(Robot):
         return jnp.concatenate([0.1 * view["pos"][:2], 0.2 * view["vel"][:2],
                                 0.1 * view["angvel"]])
 
-    def specific_reward(self, action):
-        return -0.5 * jnp.linalg.norm(action)
+    def specific_reward(self, view, action):
+        return -0.5 * jnp.linalg.norm(jnp.clip(action, -1.0, 1.0))  # the clipped action
 
 
 class Car(Robot):
@@ -154,6 +163,7 @@ class Car(Robot):
                                      physicsClientId=world.cid)
 
     def apply_action(self, pb, cid, body, action):
+        action = np.clip(action, -1.0, 1.0)
         # float64 products, as the original's numpy 1.x computes them from float32 actions
         speed = float(np.float64(action[0]) * self.speed_multiplier)
         angle = float(np.float64(action[1]) * self.steering_multiplier)

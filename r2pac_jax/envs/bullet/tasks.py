@@ -116,7 +116,7 @@ class BulletTask:
         pos, vel = after["pos"], after["vel"]
         if self.kind == "run":
             reward = (progress(before["pos"][:2], after["dpos"][:2]) + extras["pending"]
-                      + self.robot.specific_reward(action))
+                      + self.robot.specific_reward(after, action))
             outside = jnp.abs(pos[1]) > RUN_Y_LIMIT
             too_fast = jnp.linalg.norm(vel[:2]) > self.robot.velocity_limit
             cost = (outside | too_fast).astype(jnp.float32)
@@ -124,7 +124,7 @@ class BulletTask:
             dist = jnp.linalg.norm(pos[:2])
             tangential = jnp.dot(pos[:2], jnp.array([-vel[1], vel[0]]))
             reward = (0.1 * tangential / (1.0 + jnp.abs(dist - CIRCLE_RADIUS))
-                      + 0.01 * self.robot.specific_reward(action))
+                      + 0.01 * self.robot.specific_reward(after, action))
             cost = (jnp.abs(pos[0]) > CIRCLE_X_LIMIT).astype(jnp.float32)
         extras = dict(extras, pending=jnp.zeros((), jnp.float32))
         return reward, cost, ~self.robot.alive(after), extras
