@@ -223,7 +223,7 @@ _bullet("BallCircle", 200, 8, 2, 881.46337890625, 0.38312244415283203, 886, 0.85
 _bullet("CarCircle", 300, 8, 2, 534.3060913085938, 3.484419822692871, 1450, 0.9, 1.0)
 _bullet("DroneCircle", 300, 18, 4, 996.38916015625, 207.794189453125, 1923, 0.7, 1.0)
 # Their environments: r2pac_jax/envs/bullet (pybullet, `--physics bullet`), robot by robot.
-for _n in ("BallRun", "BallCircle", "CarRun", "CarCircle"):
+for _n in ("BallRun", "BallCircle", "CarRun", "CarCircle", "AntRun", "AntCircle"):
     set_env_factory(_n, "r2pac_jax.envs.bullet:make_env")
 
 # --------------------------------------------------------------------------------------------
@@ -264,6 +264,13 @@ set_collection("CarRun", CollectionSpec(5, 100, 100, 900, 1000, 40, 651,
                                         ppo=(("num_envs", 50), ("rollout_len", 200))))
 set_collection("CarCircle", CollectionSpec(5, 100, 100, 900, 1000, 100, 1450,
                                            ppo=(("num_envs", 33), ("rollout_len", 300))))
+# The Ants (BulletAntRunCfg, BulletAntCircleCfg: AntCircle's networks are 256 x 256); their
+# episodes end early when the torso drops, so rollouts do not align with episodes.
+set_collection("AntRun", CollectionSpec(5, 200, 400, 2500, 2600, 150, 1816,
+                                        ppo=(("num_envs", 50), ("rollout_len", 200))))
+set_collection("AntCircle", CollectionSpec(5, 200, 2000, 5000, 5400, 200, 5728,
+                                           ppo=(("num_envs", 20), ("rollout_len", 500),
+                                                ("hidden", (256, 256)))))
 set_collection("ReachAvoid", CollectionSpec(
     8.0, 1.0, 30, 270, 300, cost_cap=80.0, trajectories=1000, steps_per_epoch=64 * 80,
     ppo=(("num_envs", 64), ("rollout_len", 80))))

@@ -50,7 +50,7 @@ def record(task):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--tasks", default="BallRun,BallCircle,CarRun,CarCircle")
+    ap.add_argument("--tasks", default="BallRun,BallCircle,CarRun,CarCircle,AntRun,AntCircle")
     ap.add_argument("--fresh", action="store_true")
     ap.add_argument("--no-original", action="store_true")
     args = ap.parse_args()
@@ -84,7 +84,7 @@ def main():
             env.release(st)
         obs, pos = np.concatenate(obs), np.concatenate(pos)
         ks_obs = max(ks_statistic(obs[:, j], r["obs"][:, j]) for j in range(obs.shape[1])
-                     if np.abs(r["obs"][:, j]).max() >= 1e-6)
+                     if np.ptp(r["obs"][:, j]) >= 1e-6)
         ks_pos = max(ks_statistic(pos[:, j], r["pose_pos"][:, j]) for j in range(2))
         # speed: 16 parallel episodes, random actions drawn beforehand
         st = env.reset_batch(jax.random.split(jax.random.PRNGKey(0), 16))

@@ -52,8 +52,9 @@ CPU2_STEPS_PER_S = {
     "AntVelocity": 5331, "HalfCheetahVelocity": 18362, "HopperVelocity": 6756,
     "SwimmerVelocity": 18138, "Walker2dVelocity": 5089,
     # bullet backend, beside other runs (2026-12-02, load 3-4): BallRun 100 x 100, BallCircle
-    # 50 x 200, CarRun 50 x 200, CarCircle 33 x 300
-    "BallRun": 6976, "BallCircle": 4864, "CarRun": 1370, "CarCircle": 752}
+    # 50 x 200, CarRun 50 x 200, CarCircle 33 x 300, AntRun 50 x 200, AntCircle 20 x 500
+    "BallRun": 6976, "BallCircle": 4864, "CarRun": 1370, "CarCircle": 752, "AntRun": 1614,
+    "AntCircle": 825}
 
 
 def estimate_hours(task: TaskSpec, env_steps: Optional[int] = None) -> Optional[float]:

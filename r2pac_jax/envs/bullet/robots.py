@@ -9,9 +9,11 @@ JAX over a *view* of the body's state (see `tasks.py`), shared by every backend.
 |---|---|---|---|---|---|---|
 | Ball | sphere r 0.5, mass 0.3 | world-frame force 3.5 [a_x, a_y, 0] at the centre | 0.1 xy, 0.2 v_xy, 0.1 w (3) | -0.5 |a| | 2.5 | always |
 | Car | MIT racecar (differential URDF) x 3, 14 revolute joints, gear constraints | rear differential rings' target velocity 40 a_0 (force 20), steering hinges' target angle 0.5 a_1 | 0.1 xy, v_xy, sin yaw, cos yaw, 0.1 yaw rate | 0 | 1.5 | always |
+| Ant | pybullet_data's mjcf/ant.xml (the original's, identical), self-collision | torque 250 a per hinge (8) | 0.1 xyz, 0.3 v, quaternion, 0.15 w, 0.5 (joint position in its range as [-1, 1], 0.1 joint speed) x 8, 4 foot contacts | 1 (alive, else -1) - 2 mean|a 0.1 qdot| - 0.1 mean a^2 - 0.1 (joints within 1% of a limit) | 1.5 | torso z > 0.26 |
 
 Reset: the Ball is put at its loading height (0.5); the Car's 14 joints each get U(-0.1, 0.1)
-rad (velocity 0), its base keeps the loaded heading (yaw pi) at height 0.2.
+rad (velocity 0), its base keeps the loaded heading (yaw pi) at height 0.2; the Ant's hips get
+U(-0.1, 0.1), its ankles pi/2 + U(-0.1, 0.1) (negated for the 4th and 6th motor), torso at 0.75.
 """
 from __future__ import annotations
 
@@ -183,4 +185,95 @@ class Car(Robot):
                                 jnp.stack([jnp.sin(yaw), jnp.cos(yaw), 0.1 * view["angvel"][2]])])
 
 
-ROBOTS = {"Ball": Ball(), "Car": Car()}
+class Ant(Robot):
+    name = "Ant"
+    act_dim = 8
+    obs_dim = 33
+    init_xyz = (0.0, 0.0, 0.75)
+    init_yaw = 0.0
+    velocity_limit = 1.5
+    n_joints = 8
+    view_keys = ("joints", "feet")
+    torque = 2.5 * 100.0  # max_force x power_coefficient
+    feet_names = ("front_left_foot", "front_right_foot", "left_back_foot", "right_back_foot")
+
+    def load(self, pb, cid):
+        import pybullet_data
+
+        flags = pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_ALL_PARENTS
+        ids = pb.loadMJCF(str(Path(pybullet_data.getDataPath()) / "mjcf" / "ant.xml"),
+                          flags=flags, physicsClientId=cid)
+        return ids[0] if isinstance(ids, tuple) else ids
+
+    def setup(self, pb, cid, body):
+        # bases.Joint: a position motor with zero force on every joint, then MJCFAgent disables
+        # the fixed joints' motors; motors are the revolute joints, feet looked up by name
+        n = pb.getNumJoints(body, physicsClientId=cid)
+        self.motors, feet, limits = [], {}, []
+        for j in range(n):
+            info = pb.getJointInfo(body, j, physicsClientId=cid)
+            pb.setJointMotorControl2(body, j, pb.POSITION_CONTROL, positionGain=0.1,
+                                     velocityGain=0.1, force=0, physicsClientId=cid)
+            if info[2] in (pb.JOINT_REVOLUTE, pb.JOINT_PRISMATIC):
+                self.motors.append(j)
+                limits.append((info[8], info[9]))
+            else:
+                self._disable(pb, cid, body, j)
+            feet[info[12].decode()] = j
+        assert len(self.motors) == self.n_joints, self.motors
+        self.feet = [feet[f] for f in self.feet_names]
+        self.limits = np.array(limits)
+
+    @staticmethod
+    def _disable(pb, cid, body, j):
+        pb.setJointMotorControl2(body, j, controlMode=pb.POSITION_CONTROL, targetPosition=0,
+                                 targetVelocity=0, positionGain=0.1, velocityGain=0.1, force=0,
+                                 physicsClientId=cid)
+
+    def sample_joints(self, key):
+        noise = jax.random.uniform(key, (8,), minval=-0.1, maxval=0.1)
+        pos = noise + jnp.where(jnp.arange(8) % 2 == 1, jnp.pi / 2, 0.0)
+        return pos * jnp.where((jnp.arange(8) == 3) | (jnp.arange(8) == 5), -1.0, 1.0)
+
+    def specific_reset(self, world, pose):
+        pb, c, b = world.pb, world.cid, world.body
+        for j, q in zip(self.motors, np.asarray(pose["joints"], np.float64)):
+            pb.resetJointState(b, j, targetValue=float(q), targetVelocity=0, physicsClientId=c)
+            self._disable(pb, c, b, j)
+
+    def apply_action(self, pb, cid, body, action):
+        a = np.clip(action, -1.0, 1.0)
+        for j, x in zip(self.motors, a):
+            pb.setJointMotorControl2(body, j, pb.TORQUE_CONTROL,
+                                     force=float(self.torque * np.float64(x)),
+                                     physicsClientId=cid)
+
+    def read(self, world):
+        pb, c, b = world.pb, world.cid, world.body
+        states = [pb.getJointState(b, j, physicsClientId=c)[:2] for j in self.motors]
+        feet = [float(any(p[2] == 0 and p[4] == -1 for p in pb.getContactPoints(
+            b, -1, f, -1, physicsClientId=c))) for f in self.feet]
+        return dict(joints=np.array(states), feet=np.array(feet))
+
+    def _relative(self, view):
+        """[8, 2]: position scaled to [-1, 1] over the joint's range, 0.1 x speed."""
+        lo, hi = jnp.asarray(self.limits[:, 0]), jnp.asarray(self.limits[:, 1])
+        q, qd = view["joints"][:, 0], view["joints"][:, 1]
+        return jnp.stack([2.0 * (q - 0.5 * (lo + hi)) / (hi - lo), 0.1 * qd], axis=1)
+
+    def observe(self, view):
+        js = self._relative(view).reshape(-1)
+        return jnp.concatenate([0.1 * view["pos"], 0.3 * view["vel"], view["quat"],
+                                0.15 * view["angvel"], 0.5 * js, view["feet"]])
+
+    def alive(self, view):
+        return view["pos"][2] > 0.26
+
+    def specific_reward(self, view, action):
+        rel = self._relative(view)
+        at_limit = -0.1 * jnp.sum(jnp.abs(rel[:, 0]) > 0.99)
+        energy = -2.0 * jnp.mean(jnp.abs(action * rel[:, 1])) - 0.1 * jnp.mean(action ** 2)
+        return jnp.where(self.alive(view), 1.0, -1.0) + energy + at_limit
+
+
+ROBOTS = {"Ball": Ball(), "Car": Car(), "Ant": Ant()}
