@@ -223,7 +223,8 @@ _bullet("BallCircle", 200, 8, 2, 881.46337890625, 0.38312244415283203, 886, 0.85
 _bullet("CarCircle", 300, 8, 2, 534.3060913085938, 3.484419822692871, 1450, 0.9, 1.0)
 _bullet("DroneCircle", 300, 18, 4, 996.38916015625, 207.794189453125, 1923, 0.7, 1.0)
 # Their environments: r2pac_jax/envs/bullet (pybullet, `--physics bullet`), robot by robot.
-for _n in ("BallRun", "BallCircle", "CarRun", "CarCircle", "AntRun", "AntCircle"):
+for _n in ("BallRun", "BallCircle", "CarRun", "CarCircle", "DroneRun", "DroneCircle", "AntRun",
+           "AntCircle"):
     set_env_factory(_n, "r2pac_jax.envs.bullet:make_env")
 
 # --------------------------------------------------------------------------------------------
@@ -271,6 +272,11 @@ set_collection("AntRun", CollectionSpec(5, 200, 400, 2500, 2600, 150, 1816,
 set_collection("AntCircle", CollectionSpec(5, 200, 2000, 5000, 5400, 200, 5728,
                                            ppo=(("num_envs", 20), ("rollout_len", 500),
                                                 ("hidden", (256, 256)))))
+# The Drones (BulletDroneRunCfg: the limit *falls* 100 -> 5; BulletDroneCircleCfg).
+set_collection("DroneRun", CollectionSpec(100, 5, 50, 800, 1000, 140, 1990,
+                                          ppo=(("num_envs", 50), ("rollout_len", 200))))
+set_collection("DroneCircle", CollectionSpec(5, 150, 500, 2500, 2600, 100, 1923,
+                                             ppo=(("num_envs", 33), ("rollout_len", 300))))
 set_collection("ReachAvoid", CollectionSpec(
     8.0, 1.0, 30, 270, 300, cost_cap=80.0, trajectories=1000, steps_per_epoch=64 * 80,
     ppo=(("num_envs", 64), ("rollout_len", 80))))

@@ -72,7 +72,8 @@ CASES = [
     # data
     ("data", ["make", "--task", "CarGoal2", "--source", "ppo-lagrangian", "--budget", "0"], 2,
      "--budget and --trajectories must be >= 1"),
-    ("data", ["make", "--task", "CarRun"], 2, "no data source for task 'CarRun'"),
+    ("data", ["make", "--task", "CarRun", "--source", "scripted"], 2,
+     "task CarRun has no scripted data source"),
     ("data", ["check", "{f}"], 2, "does not say its task"),
 ]
 

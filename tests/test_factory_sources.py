@@ -112,9 +112,18 @@ def test_data_cli_unknown_task_and_unwritable_cache(tmp_path, monkeypatch, capsy
 
     assert main(["make", "--task", "CarGoal9"]) == 2
     assert "unknown task 'CarGoal9'" in capsys.readouterr().err
-    assert main(["make", "--task", "CarRun"]) == 2  # registered, but no environment/source
+    import dataclasses
+
+    from r2pac_jax import tasks as registry
+
+    monkeypatch.setitem(registry.TASKS, "CarRun",  # registered, but no environment / source
+                        dataclasses.replace(registry.get_task("CarRun"), env_factory=None))
+    assert main(["make", "--task", "CarRun"]) == 2
     err = capsys.readouterr().err
     assert "no data source for task 'CarRun'" in err and "--dataset FILE" in err
+    monkeypatch.undo()
+    assert main(["make", "--task", "CarRun", "--source", "scripted"]) == 2  # learned only
+    assert "no scripted data source" in capsys.readouterr().err
     blocker = tmp_path / "file"
     blocker.write_text("")
     monkeypatch.setenv("R2PAC_DATA_DIR", str(blocker / "sub"))

@@ -108,8 +108,11 @@ def test_navigation_task_through_gym():
 def test_errors_are_clear():
     with pytest.raises(UnknownTaskError, match="known tasks: .*CarGoal2"):
         gym_env("NoSuchTask")
+    import dataclasses
+
+    no_env = dataclasses.replace(get_task("AntRun"), env_factory=None)  # constants, no port
     with pytest.raises(EnvUnavailableError, match="no environment port"):
-        gym_env("AntRun")  # registered (constants, data) but no environment
+        gym_env(no_env)
     with pytest.raises(ValueError, match="pure JAX"):
         gym_env("ReachAvoid", physics="mujoco")
     env = gym_env("ReachAvoid")

@@ -194,6 +194,13 @@ def test_data_cli_errors(tmp_path, monkeypatch, capsys):
     with pytest.raises(SystemExit):
         main(["make", "--task", "ReachAvoid", "--source", "sac"])
     assert "invalid choice: 'sac'" in capsys.readouterr().err
+    import dataclasses
+
+    from r2pac_jax import tasks as registry
+
+    # a registered task without an environment (constants only) has no source of either kind
+    monkeypatch.setitem(registry.TASKS, "CarRun",
+                        dataclasses.replace(get_task("CarRun"), env_factory=None))
     assert main(["make", "--task", "CarRun", "--source", "ppo-lagrangian"]) == 2
     assert "no data source for task 'CarRun'" in capsys.readouterr().err
     assert main(["make", "--task", "CarGoal2", "--source", "ppo-lagrangian", "--budget", "0"]) \

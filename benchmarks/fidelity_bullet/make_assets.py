@@ -15,7 +15,8 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 OUT = Path(__file__).resolve().parents[2] / "r2pac_jax" / "envs" / "assets" / "bullet"
-MODELS = {"robots/racecar/racecar_differential.urdf": "racecar_differential.urdf"}
+MODELS = {"robots/racecar/racecar_differential.urdf": "racecar_differential.urdf",
+          "robots/quadcopter/quadcopter.urdf": "quadcopter.urdf"}
 
 
 def strip(src: Path, dst: Path, origin: str) -> None:

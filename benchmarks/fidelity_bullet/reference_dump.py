@@ -24,9 +24,11 @@ and a second fresh instance of the original replaying each (np.random re-seeded,
 sampled positions: the injection our replay uses) -- the original-against-original floor.
 `consecutive_obs` [EPISODES]: the largest observation difference of each episode replayed in
 ONE instance one after another (the original's own use) against its fresh-instance record: how
-much the original's history (restoreState keeps solver caches) changes an episode.
-`resets`: N resets of one instance: obs [N, obs] (after reset), pose_pos [N, 3],
-pose_quat [N, 4], joint_pos [N, J].
+much the original's history (restoreState keeps solver caches) changes an episode, over the
+steps both have; `consecutive_length` [EPISODES]: the consecutive episode's length minus the
+fresh one's.
+`resets`: N resets, each of a fresh instance (np.random.seed(SEED + i)): obs [N, obs] (after
+reset), pose_pos [N, 3], pose_quat [N, 4], joint_pos [N, J].
 """
 import sys
 import warnings
@@ -126,7 +128,7 @@ def rollout(env_id, seed, episodes, out):
     floor = dict(obs=0.0, reward=0.0, pos=0.0)
     consecutive = gymnasium.make(env_id)
     crec = Recorder(consecutive)
-    leak = []
+    leak, lengths = [], []
     for e in range(episodes):
         p = f"e{e}_"
         twin = gymnasium.make(env_id)
@@ -135,7 +137,8 @@ def rollout(env_id, seed, episodes, out):
             np.random.seed(seed + e)
             obs0, _ = env.reset()
             obs, rows, base = play(env, r, arrays[p + "action"])
-            d_obs = float(np.abs(np.array([obs0] + obs) - arrays[p + "obs"]).max())
+            n = min(len(obs) + 1, len(arrays[p + "obs"]))  # a history can change the length
+            d_obs = float(np.abs(np.array([obs0] + obs)[:n] - arrays[p + "obs"][:n]).max())
             if fresh:
                 floor["obs"] = max(floor["obs"], d_obs)
                 floor["reward"] = max(floor["reward"], float(np.abs(
@@ -144,23 +147,28 @@ def rollout(env_id, seed, episodes, out):
                     np.array([b[0] for b in base]) - arrays[p + "base_pos"]).max()))
             else:
                 leak.append(d_obs)
+                lengths.append(len(obs) - len(arrays[p + "action"]))
         twin.close()
     np.savez_compressed(out, env_id=env_id, seed=seed, episodes=episodes,
                         **{f"floor_{k}": v for k, v in floor.items()},
-                        consecutive_obs=np.array(leak), **arrays)
+                        consecutive_obs=np.array(leak), consecutive_length=np.array(lengths),
+                        **arrays)
 
 
 def resets(env_id, seed, n, out):
-    np.random.seed(seed)
-    env = gymnasium.make(env_id)
-    rec = Recorder(env)
+    """N resets, each on a fresh instance after np.random.seed(seed + i) (as our backend starts
+    every episode; a long-lived instance's resets carry its history, see `rollout`)."""
     obs, pos, quat, joints = [], [], [], []
-    for _ in range(n):
+    for i in range(n):
+        env = gymnasium.make(env_id)
+        rec = Recorder(env)
+        np.random.seed(seed + i)
         o, _ = env.reset()
         obs.append(o)
         pos.append(rec.last["pose_pos"])
         quat.append(rec.last["pose_quat"])
         joints.append(rec.last["joint_pos"])
+        env.close()
     np.savez_compressed(out, env_id=env_id, seed=seed, obs=np.array(obs), pose_pos=np.array(pos),
                         pose_quat=np.array(quat), joint_pos=np.array(joints))
 

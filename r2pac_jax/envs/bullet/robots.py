@@ -9,11 +9,13 @@ JAX over a *view* of the body's state (see `tasks.py`), shared by every backend.
 |---|---|---|---|---|---|---|
 | Ball | sphere r 0.5, mass 0.3 | world-frame force 3.5 [a_x, a_y, 0] at the centre | 0.1 xy, 0.2 v_xy, 0.1 w (3) | -0.5 |a| | 2.5 | always |
 | Car | MIT racecar (differential URDF) x 3, 14 revolute joints, gear constraints | rear differential rings' target velocity 40 a_0 (force 20), steering hinges' target angle 0.5 a_1 | 0.1 xy, v_xy, sin yaw, cos yaw, 0.1 yaw rate | 0 | 1.5 | always |
+| Drone | the original's quadcopter URDF x 2 (mass 1.42 as written), 4 rotors | rotor target speed hover x (1 + 0.1 a) (force 23.444), and per rotor a thrust force along its axis from the propeller formula at that target speed and the climb speed | 0.1 xyz, 0.2 v, quaternion (via Euler angles), 0.1 w, 2.5e-3 (rotor speed - hover speed) x 4 | 1 (alive, else -10) - 0.01 |w|^2 - links touching the ground | 1.5 | |roll|, |pitch| <= pi/2 |
 | Ant | pybullet_data's mjcf/ant.xml (the original's, identical), self-collision | torque 250 a per hinge (8) | 0.1 xyz, 0.3 v, quaternion, 0.15 w, 0.5 (joint position in its range as [-1, 1], 0.1 joint speed) x 8, 4 foot contacts | 1 (alive, else -1) - 2 mean|a 0.1 qdot| - 0.1 mean a^2 - 0.1 (joints within 1% of a limit) | 1.5 | torso z > 0.26 |
 
 Reset: the Ball is put at its loading height (0.5); the Car's 14 joints each get U(-0.1, 0.1)
 rad (velocity 0), its base keeps the loaded heading (yaw pi) at height 0.2; the Ant's hips get
-U(-0.1, 0.1), its ankles pi/2 + U(-0.1, 0.1) (negated for the 4th and 6th motor), torso at 0.75.
+U(-0.1, 0.1), its ankles pi/2 + U(-0.1, 0.1) (negated for the 4th and 6th motor), torso at 0.75;
+the Drone's 4 rotor joints U(-0.1, 0.1) rad, base at 0.17.
 """
 from __future__ import annotations
 
@@ -276,4 +278,110 @@ class Ant(Robot):
         return jnp.where(self.alive(view), 1.0, -1.0) + energy + at_limit
 
 
-ROBOTS = {"Ball": Ball(), "Car": Car(), "Ant": Ant()}
+class Drone(Robot):
+    name = "Drone"
+    act_dim = 4
+    obs_dim = 17
+    init_xyz = (0.0, 0.0, 0.17)
+    init_yaw = 0.0
+    velocity_limit = 1.5
+    n_joints = 4
+    view_keys = ("rpy", "quat_euler", "rotors", "ground")
+    # the original's constants (AscTec Hummingbird, from PyRoboLearn)
+    radius = 0.14
+    directions = np.array([1.0, -1.0, 1.0, -1.0])  # rotors 1, 3 CCW; 2, 4 CW
+    pitch = 4.7 * 0.0254
+    k1, k2 = 1.0 / 3.29546, 1.5
+    air_density = 1.225
+    mass, gravity = 1.420, 9.81
+    action_range = 0.1
+    motor_force = 23.444
+
+    def __init__(self):
+        self.area = np.pi * self.radius ** 2
+        self.diameter = 2.0 * self.radius
+        fg = self.mass * self.gravity / 4.0
+        p = self.pitch
+        hover = (2 * np.pi / p) * (fg / (self.air_density * self.area)
+                                   * (p / (self.k1 * self.diameter)) ** self.k2) ** 0.5
+        self.hover = self.directions * hover  # rad/s per rotor, signed
+
+    def load(self, pb, cid):
+        q = pb.getQuaternionFromEuler((0.0, 0.0, self.init_yaw))
+        return pb.loadURDF(str(ASSETS / "quadcopter.urdf"), self.init_xyz, q, globalScaling=2,
+                           useFixedBase=0, flags=0, physicsClientId=cid)
+
+    def setup(self, pb, cid, body):
+        n = pb.getNumJoints(body, physicsClientId=cid)
+        self.motors = []
+        for j in range(n):
+            pb.setJointMotorControl2(body, j, pb.POSITION_CONTROL, positionGain=0.1,
+                                     velocityGain=0.1, force=0, physicsClientId=cid)
+            if pb.getJointInfo(body, j, physicsClientId=cid)[2] in (pb.JOINT_REVOLUTE,
+                                                                     pb.JOINT_PRISMATIC):
+                self.motors.append(j)
+            else:
+                pb.setJointMotorControl2(body, j, controlMode=pb.POSITION_CONTROL,
+                                         targetPosition=0, targetVelocity=0, positionGain=0.1,
+                                         velocityGain=0.1, force=0, physicsClientId=cid)
+        assert len(self.motors) == self.n_joints, self.motors
+        for j in self.motors:  # pybullet clamps joint speeds to 100 rad/s by default
+            pb.changeDynamics(body, j, maxJointVelocity=1000, physicsClientId=cid)
+        # the original's link list: each joint's child link in index order, the base after
+        # the first (its ground-contact penalty counts every link once)
+        self.links = [0, -1] + list(range(1, n))
+
+    def sample_joints(self, key):
+        return jax.random.uniform(key, (4,), minval=-0.1, maxval=0.1)
+
+    def specific_reset(self, world, pose):
+        for j, q in zip(self.motors, np.asarray(pose["joints"], np.float64)):
+            world.pb.resetJointState(world.body, j, targetValue=float(q), targetVelocity=0,
+                                     physicsClientId=world.cid)
+
+    def thrust(self, speed: float, v0: float) -> float:
+        """The original's propeller formula (N) at rotor speed `speed` (rad/s), climb v0."""
+        tmp = speed / (2 * np.pi) * self.pitch
+        diameter = (4.0 * self.area / np.pi) ** 0.5
+        return self.air_density * self.area * (tmp ** 2 - tmp * v0) * (
+            self.k1 * diameter / self.pitch) ** self.k2
+
+    def apply_action(self, pb, cid, body, action):
+        a = np.clip(action, -1.0, 1.0)
+        _, quat = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
+        vel, _ = pb.getBaseVelocity(body, physicsClientId=cid)
+        R = np.array(pb.getMatrixFromQuaternion(quat)).reshape((3, 3))
+        # float32 multiplier times the float64 hover speeds, as numpy 1.x computes them
+        target = self.hover * (np.float32(1) + np.float32(self.action_range) * a)
+        v0 = np.array(vel).dot(R.dot(np.array([0.0, 0.0, 1.0])))
+        for j, d, v in zip(self.motors, self.directions, target):
+            pb.setJointMotorControl2(body, j, pb.VELOCITY_CONTROL, targetVelocity=v,
+                                     force=self.motor_force, physicsClientId=cid)
+            f = self.thrust(v * d, v0)
+            pb.applyExternalForce(body, j, np.array([0, 0, f]), (0.0, 0.0, 0.0), pb.LINK_FRAME,
+                                  physicsClientId=cid)
+
+    def read(self, world):
+        pb, c, b = world.pb, world.cid, world.body
+        _, quat = pb.getBasePositionAndOrientation(b, physicsClientId=c)
+        rpy = pb.getEulerFromQuaternion(quat)
+        rotors = [pb.getJointState(b, j, physicsClientId=c)[1] for j in self.motors]
+        ground = [float(any(p[2] == 0 and p[4] == -1 for p in pb.getContactPoints(
+            b, -1, link, -1, physicsClientId=c))) for link in self.links]
+        return dict(rpy=np.array(rpy), quat_euler=np.array(pb.getQuaternionFromEuler(rpy)),
+                    rotors=np.array(rotors), ground=np.array(ground))
+
+    def observe(self, view):
+        rotors = 2.5e-3 * (view["rotors"] - jnp.asarray(self.hover, jnp.float32))
+        return jnp.concatenate([0.1 * view["pos"], 0.2 * view["vel"], view["quat_euler"],
+                                0.1 * view["angvel"], rotors])
+
+    def alive(self, view):
+        return (jnp.abs(view["rpy"][0]) <= 0.5 * jnp.pi) & (jnp.abs(view["rpy"][1]) <= 0.5 * jnp.pi)
+
+    def specific_reward(self, view, action):
+        spin = 0.01 * jnp.sum(view["angvel"] ** 2)
+        return jnp.where(self.alive(view), 1.0, -10.0) - spin - jnp.sum(view["ground"])
+
+
+ROBOTS = {"Ball": Ball(), "Car": Car(), "Drone": Drone(), "Ant": Ant()}

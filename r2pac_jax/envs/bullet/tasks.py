@@ -139,12 +139,8 @@ BULLET_TASKS = {
 
 
 def make_task(spec) -> BulletTask:
+    if spec.name not in BULLET_TASKS:
+        raise ValueError(f"{spec.name!r} is not a Bullet-Safety-Gym task; those are "
+                         f"{', '.join(BULLET_TASKS)}")
     kind, robot = BULLET_TASKS[spec.name]
-    if robot not in ROBOTS:
-        from r2pac_jax.tasks import EnvUnavailableError
-
-        ported = sorted(n for n, (_, r) in BULLET_TASKS.items() if r in ROBOTS)
-        raise EnvUnavailableError(
-            f"task {spec.name!r}: its robot ({robot}) is not ported to r2pac_jax's Bullet "
-            f"backend yet; Bullet tasks with environments: {', '.join(ported)}")
     return BulletTask(spec, kind, ROBOTS[robot])
