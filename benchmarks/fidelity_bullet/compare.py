@@ -50,7 +50,8 @@ def record(task):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--tasks", default="BallRun,BallCircle,CarRun,CarCircle,AntRun,AntCircle")
+    ap.add_argument("--tasks", default="BallRun,BallCircle,CarRun,CarCircle,DroneRun,DroneCircle,"
+                                       "AntRun,AntCircle")
     ap.add_argument("--fresh", action="store_true")
     ap.add_argument("--no-original", action="store_true")
     args = ap.parse_args()
