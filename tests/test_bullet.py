@@ -67,8 +67,15 @@ def ks_statistic(a, b):
                   - np.searchsorted(b, x, "right") / b.size).max()
 
 
-@pytest.mark.parametrize("n", [200, pytest.param(1000, marks=pytest.mark.slow)])
-@pytest.mark.parametrize("task", PORTED)
+# the default suite checks the four Run tasks and BallCircle (the Circle reset law is one
+# sampler for every robot); the other Circle tasks and 1,000 resets each run with -m slow
+SLOW = pytest.mark.slow
+RESET_CASES = [pytest.param(t, 200, marks=[SLOW] if t in ("CarCircle", "DroneCircle", "AntCircle")
+                            else []) for t in PORTED] + [pytest.param(t, 1000, marks=SLOW)
+                                                         for t in PORTED]
+
+
+@pytest.mark.parametrize("task,n", RESET_CASES)
 def test_reset_distribution_matches_the_original(task, n):
     """n resets of ours against 1,000 of the original (fresh instances, global np.random there;
     JAX keys here): every observation entry, the sampled position and the robots' joints pass a
@@ -190,7 +197,8 @@ def test_an_episode_does_not_depend_on_the_one_before():
 
 
 @pytest.mark.filterwarnings("ignore::UserWarning")  # check_env's notes on infinite obs bounds
-@pytest.mark.parametrize("task", PORTED)
+@pytest.mark.parametrize("task", [pytest.param(t, marks=[] if t.startswith("Ball") else [SLOW])
+                                  for t in PORTED])
 def test_gymnasium_check_env(task):
     from gymnasium.utils.env_checker import check_env
 
@@ -256,6 +264,26 @@ def test_bad_input():
         from r2pac_jax.envs.bullet.tasks import make_task
 
         make_task(get_task("CarGoal1"))
+
+
+def test_too_many_clients_is_refused_and_envs_free_theirs(monkeypatch):
+    import gc
+
+    import pybullet as pb
+
+    from r2pac_jax.envs.bullet import engine
+
+    env = make_env(get_task("BallRun"))
+    st = env.reset_batch(jax.random.split(jax.random.PRNGKey(0), 3))
+    cids = [w.cid for w in env._worlds]
+    monkeypatch.setenv("R2PAC_BULLET_MAX_CLIENTS", str(engine._LIVE[0] + 2))
+    with pytest.raises(MemoryError, match="R2PAC_BULLET_MAX_CLIENTS"):
+        make_env(get_task("BallRun")).reset_batch(jax.random.split(jax.random.PRNGKey(1), 3))
+    env.release(st)
+    env.reset_batch(jax.random.split(jax.random.PRNGKey(1), 3))  # recycled: no new client
+    del env, st
+    gc.collect()
+    assert not any(pb.getConnectionInfo(c)["isConnected"] for c in cids)
 
 
 def test_missing_pybullet_names_the_install(monkeypatch):

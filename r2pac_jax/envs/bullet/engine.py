@@ -17,6 +17,7 @@ by `revive`, which replays each episode's recorded actions from its start.
 """
 from __future__ import annotations
 
+import functools
 from typing import Optional
 
 import jax
@@ -28,6 +29,16 @@ from r2pac_jax.envs.bullet.robots import ASSETS
 from r2pac_jax.envs.base import BackendUnavailableError
 
 INSTALL = "pip install -e '.[bullet]' (or pip install pybullet==3.2.7)"
+MIB_PER_CLIENT = 29  # measured resident memory of one DIRECT client with its world
+_LIVE = [0]  # clients alive in this process, across envs
+
+
+def max_clients() -> int:
+    """The most pybullet clients (parallel episodes) this process may hold:
+    $R2PAC_BULLET_MAX_CLIENTS, default 512 (~15 GiB)."""
+    import os
+
+    return int(os.environ.get("R2PAC_BULLET_MAX_CLIENTS", "512"))
 BASE_KEYS = ("pos", "quat", "vel", "angvel", "dpos")
 
 
@@ -51,6 +62,7 @@ class _World:
     def __init__(self, pb, task):
         self.pb, self.task, self.robot = pb, task, task.robot
         self.cid = pb.connect(pb.DIRECT)
+        _LIVE[0] += 1
         self.build()
         self.stamp = 0
         self.free = True
@@ -141,8 +153,24 @@ class _World:
     def close(self):
         try:
             self.pb.disconnect(physicsClientId=self.cid)
+            _LIVE[0] -= 1
         except Exception:  # pragma: no cover - already gone at interpreter exit
             pass
+
+
+def _split_init(task, key):
+    key, k = jax.random.split(key)
+    return key, task.init(k)
+
+
+def _start_one(task, view, extras):
+    extras = task.after_reset(view, extras)
+    return extras, task.observe(view, extras)
+
+
+def _outcome_one(task, before, after, action, extras):
+    reward, cost, terminated, extras = task.transition(before, after, action, extras)
+    return reward, cost, terminated, extras, task.observe(after, extras)
 
 
 class BulletEnv:
@@ -157,22 +185,23 @@ class BulletEnv:
         self.name, self.obs_dim, self.act_dim = task.name, task.obs_dim, task.act_dim
         self.episode_len = task.episode_len
         self._worlds: list[_World] = []
-        self._split_init = jax.jit(jax.vmap(lambda k: (lambda a, b: (a, task.init(b)))(
-            *jax.random.split(k))))
-        self._start = jax.jit(jax.vmap(self._start_one))
-        self._outcome = jax.jit(jax.vmap(self._outcome_one))
-
-    def _start_one(self, view, extras):
-        extras = self.task.after_reset(view, extras)
-        return extras, self.task.observe(view, extras)
-
-    def _outcome_one(self, before, after, action, extras):
-        reward, cost, terminated, extras = self.task.transition(before, after, action, extras)
-        return reward, cost, terminated, extras, self.task.observe(after, extras)
+        # the jitted rules close over the task only, never over the env: an env that goes out
+        # of scope is freed at once and disconnects its clients (~30 MB each)
+        self._split_init = jax.jit(jax.vmap(functools.partial(_split_init, task)))
+        self._start = jax.jit(jax.vmap(functools.partial(_start_one, task)))
+        self._outcome = jax.jit(jax.vmap(functools.partial(_outcome_one, task)))
 
     # -- clients ----------------------------------------------------------------------------
     def _acquire(self, n: int) -> list[int]:
         free = [i for i, w in enumerate(self._worlds) if w.free]
+        new = n - len(free)
+        if new > 0 and _LIVE[0] + new > max_clients():
+            raise MemoryError(
+                f"{n} parallel episodes of {self.name} need {new} more pybullet clients, "
+                f"{_LIVE[0] + new} in all (about {MIB_PER_CLIENT * (_LIVE[0] + new) / 1024:.1f} "
+                f"GiB at {MIB_PER_CLIENT} MiB each), over the limit of {max_clients()}: step "
+                "fewer episodes at once (fewer lanes x episodes, or --num-envs), or raise "
+                "R2PAC_BULLET_MAX_CLIENTS if the memory is there")
         while len(free) < n:
             self._worlds.append(_World(self._pb, self.task))
             free.append(len(self._worlds) - 1)
