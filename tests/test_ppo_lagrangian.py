@@ -96,7 +96,9 @@ BALL = dict(trajectories=4, env_steps=2 * 60 * 5, ppo=dict(num_envs=2, rollout_l
 
 @pytest.mark.parametrize("name,kw", [("ReachAvoid", dict(RA, env_steps=16 * 80 * 5,
                                                           checkpoint_every=2)),
-                                     ("HopperVelocity", HOP), ("BallRun", BALL)])
+                                     ("HopperVelocity", HOP),
+                                     # slow: the bullet revive is tested in test_bullet.py
+                                     pytest.param("BallRun", BALL, marks=pytest.mark.slow)])
 def test_resumed_generation_equals_an_uninterrupted_one(name, kw, tmp_path):
     task = get_task(name)
     full = collect.generate_learned(task, tmp_path / "full.hdf5", **kw)
