@@ -286,6 +286,28 @@ def test_too_many_clients_is_refused_and_envs_free_theirs(monkeypatch):
     assert not any(pb.getConnectionInfo(c)["isConnected"] for c in cids)
 
 
+def test_a_dsrl_file_of_the_wrong_width_is_refused(tmp_path):
+    """A Bullet task's DSRL file whose observations do not match the task (BallCircle has 8,
+    BallRun 7) is refused naming both sizes."""
+    import h5py
+
+    from r2pac_jax.data import DatasetError, load_task_dataset
+
+    n = 4
+    path = tmp_path / "SafetyBallRun-v0-80-940.hdf5"
+    with h5py.File(path, "w") as f:
+        for k, shape in (("observations", (n, 8)), ("next_observations", (n, 8)),
+                         ("actions", (n, 2))):
+            f[k] = np.zeros(shape, np.float32)
+        for k in ("rewards", "costs"):
+            f[k] = np.zeros(n, np.float32)
+        f["terminals"] = np.zeros(n, bool)
+        f["timeouts"] = np.array([False, False, False, True])
+    with pytest.raises(DatasetError, match=r"observations.*size 8.*BallRun.*size 7|"
+                                           r"BallRun has observations of size 7"):
+        load_task_dataset(get_task("BallRun"), str(path), announce=lambda m: None)
+
+
 def test_missing_pybullet_names_the_install(monkeypatch):
     monkeypatch.setitem(sys.modules, "pybullet", None)
     with pytest.raises(BackendUnavailableError, match=r"pip install -e '\.\[bullet\]'"):
