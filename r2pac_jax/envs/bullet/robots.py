@@ -28,6 +28,13 @@ import numpy as np
 ASSETS = Path(__file__).resolve().parent.parent / "assets" / "bullet"
 
 
+def disable_motor(pb, cid: int, body: int, j: int) -> None:
+    """The original's `Joint.disable_motor`: a position motor with zero force."""
+    pb.setJointMotorControl2(body, j, controlMode=pb.POSITION_CONTROL, targetPosition=0,
+                             targetVelocity=0, positionGain=0.1, velocityGain=0.1, force=0,
+                             physicsClientId=cid)
+
+
 class Robot:
     """Base class (see the module docstring)."""
 
@@ -50,6 +57,33 @@ class Robot:
 
     def setup(self, pb, cid: int, body: int) -> None:
         """Motors and constraints after loading (none for the Ball)."""
+
+    def init_joints(self, pb, cid: int, body: int) -> list:
+        """The original's `bases.Joint` / `Agent._collect_information` calls for every joint in
+        index order: a position motor with zero force, and the fixed joints' motors disabled.
+        Sets `self.motors` (the revolute joints: the agent's motor list) and returns
+        `getJointInfo` of every joint."""
+        infos, self.motors = [], []
+        for j in range(pb.getNumJoints(body, physicsClientId=cid)):
+            info = pb.getJointInfo(body, j, physicsClientId=cid)
+            pb.setJointMotorControl2(body, j, pb.POSITION_CONTROL, positionGain=0.1,
+                                     velocityGain=0.1, force=0, physicsClientId=cid)
+            if info[2] in (pb.JOINT_REVOLUTE, pb.JOINT_PRISMATIC):
+                self.motors.append(j)
+            else:
+                disable_motor(pb, cid, body, j)
+            infos.append(info)
+        assert len(self.motors) == self.n_joints, self.motors
+        return infos
+
+    def reset_joints(self, world, pose: dict, disable: bool = False) -> None:
+        """Motor joints to `pose["joints"]` at rest (the original's `Joint.set_state`; with
+        `disable`, its `reset_position_and_disable_motor`)."""
+        pb, c, b = world.pb, world.cid, world.body
+        for j, q in zip(self.motors, np.asarray(pose["joints"], np.float64)):
+            pb.resetJointState(b, j, targetValue=float(q), targetVelocity=0, physicsClientId=c)
+            if disable:
+                disable_motor(pb, c, b, j)
 
     def specific_reset(self, world, pose: dict) -> None:
         """The robot's own part of a reset, before the task places it (`world`: engine._World;
@@ -131,22 +165,9 @@ class Car(Robot):
                            globalScaling=3, useFixedBase=0, flags=0, physicsClientId=cid)
 
     def setup(self, pb, cid, body):
-        # the original's motor calls in its order: each joint's position motor with zero force
-        # (bases.Joint), fixed joints' motors disabled, then every joint's velocity motor with
-        # zero force (RaceCar), then the gear constraints
-        n = pb.getNumJoints(body, physicsClientId=cid)
-        self.motors = []
-        for j in range(n):
-            pb.setJointMotorControl2(body, j, pb.POSITION_CONTROL, positionGain=0.1,
-                                     velocityGain=0.1, force=0, physicsClientId=cid)
-            if pb.getJointInfo(body, j, physicsClientId=cid)[2] in (pb.JOINT_REVOLUTE,
-                                                                     pb.JOINT_PRISMATIC):
-                self.motors.append(j)
-            else:
-                pb.setJointMotorControl2(body, j, controlMode=pb.POSITION_CONTROL,
-                                         targetPosition=0, targetVelocity=0, positionGain=0.1,
-                                         velocityGain=0.1, force=0, physicsClientId=cid)
-        assert len(self.motors) == self.n_joints, self.motors
+        # the original's motor calls in its order: the joints' zero-force motors (bases), then
+        # every joint's velocity motor with zero force (RaceCar), then the gear constraints
+        n = len(self.init_joints(pb, cid, body))
         for j in range(n):
             pb.setJointMotorControl2(body, j, pb.VELOCITY_CONTROL, targetVelocity=0, force=0,
                                      physicsClientId=cid)
@@ -162,9 +183,7 @@ class Car(Robot):
         return jax.random.uniform(key, (self.n_joints,), minval=-0.1, maxval=0.1)
 
     def specific_reset(self, world, pose):
-        for j, q in zip(self.motors, np.asarray(pose["joints"], np.float64)):
-            world.pb.resetJointState(world.body, j, targetValue=float(q), targetVelocity=0,
-                                     physicsClientId=world.cid)
+        self.reset_joints(world, pose)
 
     def apply_action(self, pb, cid, body, action):
         action = np.clip(action, -1.0, 1.0)
@@ -208,29 +227,11 @@ class Ant(Robot):
         return ids[0] if isinstance(ids, tuple) else ids
 
     def setup(self, pb, cid, body):
-        # bases.Joint: a position motor with zero force on every joint, then MJCFAgent disables
-        # the fixed joints' motors; motors are the revolute joints, feet looked up by name
-        n = pb.getNumJoints(body, physicsClientId=cid)
-        self.motors, feet, limits = [], {}, []
-        for j in range(n):
-            info = pb.getJointInfo(body, j, physicsClientId=cid)
-            pb.setJointMotorControl2(body, j, pb.POSITION_CONTROL, positionGain=0.1,
-                                     velocityGain=0.1, force=0, physicsClientId=cid)
-            if info[2] in (pb.JOINT_REVOLUTE, pb.JOINT_PRISMATIC):
-                self.motors.append(j)
-                limits.append((info[8], info[9]))
-            else:
-                self._disable(pb, cid, body, j)
-            feet[info[12].decode()] = j
-        assert len(self.motors) == self.n_joints, self.motors
-        self.feet = [feet[f] for f in self.feet_names]
-        self.limits = np.array(limits)
-
-    @staticmethod
-    def _disable(pb, cid, body, j):
-        pb.setJointMotorControl2(body, j, controlMode=pb.POSITION_CONTROL, targetPosition=0,
-                                 targetVelocity=0, positionGain=0.1, velocityGain=0.1, force=0,
-                                 physicsClientId=cid)
+        # feet looked up by their links' names, joint ranges for the relative positions
+        infos = self.init_joints(pb, cid, body)
+        links = {info[12].decode(): j for j, info in enumerate(infos)}
+        self.feet = [links[f] for f in self.feet_names]
+        self.limits = np.array([(infos[j][8], infos[j][9]) for j in self.motors])
 
     def sample_joints(self, key):
         noise = jax.random.uniform(key, (8,), minval=-0.1, maxval=0.1)
@@ -238,10 +239,7 @@ class Ant(Robot):
         return pos * jnp.where((jnp.arange(8) == 3) | (jnp.arange(8) == 5), -1.0, 1.0)
 
     def specific_reset(self, world, pose):
-        pb, c, b = world.pb, world.cid, world.body
-        for j, q in zip(self.motors, np.asarray(pose["joints"], np.float64)):
-            pb.resetJointState(b, j, targetValue=float(q), targetVelocity=0, physicsClientId=c)
-            self._disable(pb, c, b, j)
+        self.reset_joints(world, pose, disable=True)
 
     def apply_action(self, pb, cid, body, action):
         a = np.clip(action, -1.0, 1.0)
@@ -312,19 +310,7 @@ class Drone(Robot):
                            useFixedBase=0, flags=0, physicsClientId=cid)
 
     def setup(self, pb, cid, body):
-        n = pb.getNumJoints(body, physicsClientId=cid)
-        self.motors = []
-        for j in range(n):
-            pb.setJointMotorControl2(body, j, pb.POSITION_CONTROL, positionGain=0.1,
-                                     velocityGain=0.1, force=0, physicsClientId=cid)
-            if pb.getJointInfo(body, j, physicsClientId=cid)[2] in (pb.JOINT_REVOLUTE,
-                                                                     pb.JOINT_PRISMATIC):
-                self.motors.append(j)
-            else:
-                pb.setJointMotorControl2(body, j, controlMode=pb.POSITION_CONTROL,
-                                         targetPosition=0, targetVelocity=0, positionGain=0.1,
-                                         velocityGain=0.1, force=0, physicsClientId=cid)
-        assert len(self.motors) == self.n_joints, self.motors
+        n = len(self.init_joints(pb, cid, body))
         for j in self.motors:  # pybullet clamps joint speeds to 100 rad/s by default
             pb.changeDynamics(body, j, maxJointVelocity=1000, physicsClientId=cid)
         # the original's link list: each joint's child link in index order, the base after
@@ -335,9 +321,7 @@ class Drone(Robot):
         return jax.random.uniform(key, (4,), minval=-0.1, maxval=0.1)
 
     def specific_reset(self, world, pose):
-        for j, q in zip(self.motors, np.asarray(pose["joints"], np.float64)):
-            world.pb.resetJointState(world.body, j, targetValue=float(q), targetVelocity=0,
-                                     physicsClientId=world.cid)
+        self.reset_joints(world, pose)
 
     def thrust(self, speed: float, v0: float) -> float:
         """The original's propeller formula (N) at rotor speed `speed` (rad/s), climb v0."""
