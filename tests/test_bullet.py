@@ -337,3 +337,38 @@ def test_gym_wrapper_and_evaluation():
     assert out["returns"].shape == (2,) and (out["lengths"] == task.episode_len).all()
     # full push along x: the ball passes the speed limit, so costs occur and progress is made
     assert (out["costs"] > 0).all() and (out["returns"] > 100).all()
+
+
+@pytest.mark.slow
+def test_train_cli_on_a_bullet_task(tmp_path):
+    """`python -m r2pac_jax.train --task BallRun` end to end on a small file made by random
+    actions in the bullet env: trains, evaluates through pybullet, writes its results."""
+    import json
+
+    from r2pac_jax.data import write_dsrl
+    from r2pac_jax.train import main
+
+    env = make_env(get_task("BallRun"))
+    rng = np.random.default_rng(0)
+    rows = {k: [] for k in ("observations", "next_observations", "actions", "rewards", "costs",
+                            "terminals", "timeouts")}
+    st = env.reset_batch(jax.random.split(jax.random.PRNGKey(0), 8))
+    for _ in range(env.episode_len):
+        a = rng.uniform(-1, 1, (8, 2)).astype(np.float32)
+        nxt = env.step_batch(st, a)
+        for k, v in (("observations", st.obs), ("next_observations", nxt.obs), ("actions", a),
+                     ("rewards", nxt.reward), ("costs", nxt.cost),
+                     ("terminals", nxt.terminated), ("timeouts", nxt.truncated)):
+            rows[k].append(np.asarray(v))
+        st = nxt
+    data = {k: np.stack(v, 1).reshape((8 * env.episode_len,) + np.asarray(v[0]).shape[1:])
+            for k, v in rows.items()}
+    path = write_dsrl(tmp_path / "ballrun.hdf5", data)
+    out = tmp_path / "run"
+    assert main(["--task", "BallRun", "--algo", "bc-all-mlp", "--seeds", "2", "--eval-episodes",
+                 "2", "--baselines", "none", "--dataset", str(path), "--out", str(out),
+                 "--no-progress", "--set", "steps=20", "--set", "batch_size=32"]) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert np.asarray(res["returns"]).shape == (2, 2) and np.isfinite(res["returns"]).all()
+    assert len(res["normalized_reward"]["per_seed"]) == 2
+    assert (out / "table.md").exists() and (out / "metrics.jsonl").exists()
