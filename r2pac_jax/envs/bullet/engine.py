@@ -1,7 +1,7 @@
 """The `bullet` backend: the original's engine (pybullet 3.2.7), one physics client per episode,
 stepped in batch from Python on the CPU (`is_jax = False`). The faithful path for the
 Bullet-Safety-Gym tasks: it repeats the original's calls in the original's order (physics
-parameters, bodies loaded in the same order, the reset's restore / pose / save / step sequence,
+parameters, bodies loaded in the same order, the reset's placement calls and its settling step,
 one `stepSimulation` of `frame_skip` sub-steps per control step; every episode starts as the
 original's first episode after construction, see `_World.reset`), and runs the tasks' JAX rules
 (`tasks.py`) jitted and vmapped over the batch, as `physics.MujocoEnv` does for MuJoCo.
@@ -24,9 +24,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from r2pac_jax.envs.base import EnvState, check_action
+from r2pac_jax.envs.base import BackendUnavailableError, EnvState, check_action
 from r2pac_jax.envs.bullet.robots import ASSETS
-from r2pac_jax.envs.base import BackendUnavailableError
 
 INSTALL = "pip install -e '.[bullet]' (or pip install pybullet==3.2.7)"
 MIB_PER_CLIENT = 29  # measured resident memory of one DIRECT client with its world
@@ -39,11 +38,13 @@ def max_clients() -> int:
     import os
 
     return int(os.environ.get("R2PAC_BULLET_MAX_CLIENTS", "512"))
+
+
 BASE_KEYS = ("pos", "quat", "vel", "angvel", "dpos")
 
 
 class StaleStateError(RuntimeError):
-    pass
+    """An EnvState whose simulation has moved on (stepped, reset or released since)."""
 
 
 def import_pybullet():
@@ -230,6 +231,8 @@ class BulletEnv:
         return BASE_KEYS + tuple(self.task.robot.view_keys)
 
     def reset_batch(self, keys) -> EnvState:
+        """n new episodes from PRNG keys [n, 2]: the task's reset law, then `reset_to`. The
+        state's obs is [n, obs_dim] float32; its `physics` holds the float64 view [n, ...]."""
         keys, (pose, extras) = self._split_init(jnp.asarray(keys))
         pose = {k: np.asarray(v, np.float64) for k, v in pose.items()}
         # the robot's height is a constant: exact in float64 (0.17 or 0.2 in float32 is not,
