@@ -21,7 +21,7 @@ stepping  B parallel episodes stepped S control steps (after a warm-up that comp
           the batch.
 protocol  DSRL's evaluation: 20 episodes in parallel, each to its end (at most 1000 steps), with
           the library's own `LaneEvaluator` (what training uses); env-steps = sum of lengths,
-          resets included.
+          resets included; timed after one full warm-up call (compilation left out).
 reference the original (Safety-Gymnasium 0.4.0, MuJoCo 2.3.3) in its own virtualenv
           ($R2PAC_SG_VENV or .venv-safety-gymnasium), as a subprocess timing its own loop
           (benchmarks/env_speed_reference.py): N sequential episodes (DSRL's protocol) and
@@ -278,14 +278,9 @@ def cmd_protocol(args):
                 lane = jax.tree_util.tree_map(lambda x: jnp.asarray(x)[None], pp)
                 keys = jax.random.PRNGKey(0)[None]
                 t0 = time.perf_counter()
-                if env.is_jax:
-                    ev(lane, keys)  # compile + one run
-                else:  # one short call compiles everything the loop calls (same shapes)
-                    env.episode_len = 2
-                    try:
-                        ev(lane, keys)
-                    finally:
-                        env.episode_len = task.episode_len
+                # compile + one run (a Python-loop env steps only the running episodes, in
+                # power-of-two buckets: a full run compiles the buckets its episodes reach)
+                ev(lane, keys)
                 warm_s = time.perf_counter() - t0
                 t0 = time.perf_counter()
                 out = ev(lane, jax.random.PRNGKey(1)[None])

@@ -89,6 +89,32 @@ def rollout(policy_fn: Policy, params, env, key: jax.Array, episodes: int) -> di
     return dict(returns=ret, costs=cost, lengths=length)
 
 
+def _bucket(n: int) -> int:
+    return 1 << int(np.ceil(np.log2(max(n, 1))))
+
+
+def _step_live(env, state, actions: np.ndarray, alive: np.ndarray):
+    """Step only the episodes still running (their ended rows keep their last state, which the
+    caller masks anyway): rows in power-of-two buckets, so the env's jitted rules compile for
+    a few batch sizes only. Each row's simulation is independent, so the live rows' steps are
+    the same as when every row is stepped."""
+    n = alive.shape[0]
+    live = np.flatnonzero(alive)
+    k = min(n, _bucket(live.size))
+    if k == n:
+        return env.step_batch(state, actions)
+    rows = np.concatenate([live, np.flatnonzero(~alive)[:k - live.size]])
+    part = env.step_batch(jax.tree_util.tree_map(lambda x: np.asarray(x)[rows], state),
+                          actions[rows])
+
+    def put(full, new):
+        full = np.array(full, copy=True)
+        full[rows] = np.asarray(new)
+        return full
+
+    return jax.tree_util.tree_map(put, state, part)
+
+
 def _rollout_python(policy_lanes: MemoryPolicy, lane_params, env, keys: jax.Array,
                     episodes: int):
     """Lanes x episodes stepped from Python (non-JAX physics), the policy's three functions
@@ -107,7 +133,7 @@ def _rollout_python(policy_lanes: MemoryPolicy, lane_params, env, keys: jax.Arra
     for t in range(env.episode_len):
         obs = jnp.asarray(state.obs).reshape(L, episodes, -1)
         action, mem = policy_lanes.act(lane_params, obs, step_keys[t], mem)
-        state = env.step_batch(state, np.asarray(action).reshape(n, -1))
+        state = _step_live(env, state, np.asarray(action).reshape(n, -1), alive)
         mem = policy_lanes.observe(lane_params, mem,
                                    jnp.asarray(state.reward, jnp.float32).reshape(L, episodes),
                                    jnp.asarray(state.cost, jnp.float32).reshape(L, episodes))

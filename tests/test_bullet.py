@@ -372,3 +372,21 @@ def test_train_cli_on_a_bullet_task(tmp_path):
     assert np.asarray(res["returns"]).shape == (2, 2) and np.isfinite(res["returns"]).all()
     assert len(res["normalized_reward"]["per_seed"]) == 2
     assert (out / "table.md").exists() and (out / "metrics.jsonl").exists()
+
+
+def test_evaluation_steps_only_running_episodes_with_the_same_results(monkeypatch):
+    """The Python-loop evaluation steps the episodes still running (in power-of-two buckets);
+    on AntCircle, whose random-action episodes end early at different steps, the scores equal
+    those of stepping every episode to the end."""
+    from r2pac_jax import evaluate as ev
+
+    def rand(params, obs, key):
+        return jax.random.uniform(key, (obs.shape[0], 8), minval=-1, maxval=1) * params
+
+    task = get_task("AntCircle")
+    live = ev.evaluate(rand, jax.numpy.float32(1.0), task, episodes=4, key=jax.random.PRNGKey(2))
+    assert len(set(np.asarray(live["lengths"]).tolist())) > 1  # ends at different steps
+    monkeypatch.setattr(ev, "_step_live", lambda env, state, a, alive: env.step_batch(state, a))
+    every = ev.evaluate(rand, jax.numpy.float32(1.0), task, episodes=4, key=jax.random.PRNGKey(2))
+    for k in ("returns", "costs", "lengths"):
+        np.testing.assert_array_equal(live[k], every[k])
