@@ -408,8 +408,12 @@ class Run:
     def results(self, state, ev: Optional[dict], wall: float, steps: int) -> dict:
         from r2pac_jax.results import run_results
 
-        return run_results(self.cfg, self.task.name, self.lanes, self.agent.summary(state), ev,
-                           wall, steps, self.dataset_label, self.physics, self.diverged)
+        out = run_results(self.cfg, self.task.name, self.lanes, self.agent.summary(state), ev,
+                          wall, steps, self.dataset_label, self.physics, self.diverged)
+        if self.evaluator is not None:  # the simulator that scored it (bullet and MJX scores
+            # of a Bullet task, say, are not interchangeable)
+            out["eval_backend"] = getattr(self.evaluator.env, "backend", "jax")
+        return out
 
     def plot(self, logs) -> None:
         from r2pac_jax.report import plot_run

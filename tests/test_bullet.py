@@ -370,7 +370,7 @@ def test_train_cli_on_a_bullet_task(tmp_path):
                  "--no-progress", "--set", "steps=20", "--set", "batch_size=32"]) == 0
     res = json.loads((out / "results.json").read_text())
     assert np.asarray(res["returns"]).shape == (2, 2) and np.isfinite(res["returns"]).all()
-    assert len(res["normalized_reward"]["per_seed"]) == 2
+    assert len(res["normalized_reward"]["per_seed"]) == 2 and res["eval_backend"] == "bullet"
     assert (out / "table.md").exists() and (out / "metrics.jsonl").exists()
 
 

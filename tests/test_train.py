@@ -145,6 +145,7 @@ def test_cli_end_to_end_and_load_policy(data_dir, tmp_path, capsys):
         assert set(res[key]) >= {"mean", "std", "per_seed"} and len(res[key]["per_seed"]) == 2
         assert abs(res[key]["mean"] - np.mean(res[key]["per_seed"])) < 1e-9
     assert np.asarray(res["returns"]).shape == (2, 3) and np.asarray(res["costs"]).shape == (2, 3)
+    assert res["eval_backend"] == "jax"  # the simulator that scored it
     assert json.loads((out / "config.json").read_text())["steps"] == 20
     assert (out / "baselines" / "bc-safe-mlp" / "results.json").exists()
     assert (out / "table.md").exists() and (out / "metrics.jsonl").exists()
