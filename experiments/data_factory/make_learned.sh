@@ -6,14 +6,16 @@
 #   nice -n 10 bash experiments/data_factory/make_learned.sh [TASK ...] > runs/make_learned.log 2>&1
 #
 # Order (the data issue): the six Car tasks and the paper's three velocity tasks first, the
-# quickest first within them (estimates in GENERATION.md), then the rest.
+# quickest first within them (estimates in GENERATION.md), then the rest, then the eight Bullet
+# tasks (pybullet through --physics bullet, quickest first; AntCircle's 54M steps last).
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 TASKS=("$@")
 if [ ${#TASKS[@]} -eq 0 ]; then
   TASKS=(CarGoal1 HalfCheetahVelocity SwimmerVelocity CarButton1 AntVelocity CarButton2 CarPush1
          CarPush2 CarGoal2 PointGoal1 PointButton1 HopperVelocity PointButton2 PointPush2
-         PointPush1 Walker2dVelocity PointGoal2)
+         PointPush1 Walker2dVelocity PointGoal2 BallRun BallCircle DroneRun CarRun DroneCircle
+         CarCircle AntRun AntCircle)
 fi
 for t in "${TASKS[@]}"; do
   echo "== $t $(date -u +%FT%TZ)"
