@@ -50,6 +50,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from r2pac_jax.envs.base import pow2_bucket, put_rows, take_rows
 from r2pac_jax.tasks import get_task, list_tasks
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -123,34 +124,20 @@ def _serves(task, backend) -> bool:
     return backend in ("mujoco", "mjx")
 
 
-def _merge_lanes(state, fresh, idx):
-    """`state` (numpy leaves [B, ...]) with lanes `idx` taken from `fresh`'s first len(idx)."""
-    def put(a, b):
-        a = np.array(a)
-        a[idx] = np.asarray(b)[:len(idx)]
-        return a
-
-    return jax.tree_util.tree_map(put, state, fresh)
-
-
-def _bucket(n: int) -> int:
-    return 1 << int(np.ceil(np.log2(max(n, 1))))
-
-
 def step_c_mujoco(task, batch, policy, steps, warmup=3, physics="mujoco"):
     """C MuJoCo (or pybullet, `physics="bullet"`): `step_batch` in a Python loop; ended
     episodes are reset (only those lanes; for C MuJoCo in power-of-two buckets so that the
     jitted reset functions compile once per bucket; pybullet resets exactly the ended lanes,
     since each reset takes a simulation of its own)."""
     env = task.make_env(physics=physics)
-    bucket = _bucket if physics == "mujoco" else (lambda n: n)
+    bucket = pow2_bucket if physics == "mujoco" else (lambda n: n)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     state = env.reset_batch(keys)
     if physics == "mujoco" and (steps + warmup >= task.episode_len
                                 or task.family != "navigation"):
         # compile the reset buckets up front (up to 64 lanes ending in one step; more would
         # compile inside the timing: not seen with these batches)
-        for b in range(int(np.log2(min(_bucket(batch), 64))) + 1):
+        for b in range(int(np.log2(min(pow2_bucket(batch), 64))) + 1):
             env.reset_batch(jax.random.split(jax.random.PRNGKey(1), 1 << b))
     rng = np.random.default_rng(0)
     if policy == "none":
@@ -172,7 +159,8 @@ def step_c_mujoco(task, batch, policy, steps, warmup=3, physics="mujoco"):
             idx = np.flatnonzero(done)
             resets += len(idx)
             k = jax.random.split(jax.random.PRNGKey(1000 + t), bucket(len(idx)))
-            state = _merge_lanes(state, env.reset_batch(k), idx)
+            fresh = take_rows(env.reset_batch(k), np.arange(len(idx)))  # the bucket's first
+            state = put_rows(state, idx, fresh)
         return state
 
     for t in range(warmup):  # compiles the jitted task functions (and policy) at this batch

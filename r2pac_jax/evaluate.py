@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from r2pac_jax.envs.base import pow2_bucket, put_rows, take_rows
 from r2pac_jax.tasks import TaskSpec, get_task
 
 
@@ -89,10 +90,6 @@ def rollout(policy_fn: Policy, params, env, key: jax.Array, episodes: int) -> di
     return dict(returns=ret, costs=cost, lengths=length)
 
 
-def _bucket(n: int) -> int:
-    return 1 << int(np.ceil(np.log2(max(n, 1))))
-
-
 def _step_live(env, state, actions: np.ndarray, alive: np.ndarray):
     """Step only the episodes still running (their ended rows keep their last state, which the
     caller masks anyway): rows in power-of-two buckets, so the env's jitted rules compile for
@@ -100,19 +97,11 @@ def _step_live(env, state, actions: np.ndarray, alive: np.ndarray):
     the same as when every row is stepped."""
     n = alive.shape[0]
     live = np.flatnonzero(alive)
-    k = min(n, _bucket(live.size))
+    k = min(n, pow2_bucket(live.size))
     if k == n:
         return env.step_batch(state, actions)
     rows = np.concatenate([live, np.flatnonzero(~alive)[:k - live.size]])
-    part = env.step_batch(jax.tree_util.tree_map(lambda x: np.asarray(x)[rows], state),
-                          actions[rows])
-
-    def put(full, new):
-        full = np.array(full, copy=True)
-        full[rows] = np.asarray(new)
-        return full
-
-    return jax.tree_util.tree_map(put, state, part)
+    return put_rows(state, rows, env.step_batch(take_rows(state, rows), actions[rows]))
 
 
 def _rollout_python(policy_lanes: MemoryPolicy, lane_params, env, keys: jax.Array,

@@ -106,6 +106,29 @@ def record_episode(env, act: Callable[[EnvState, jax.Array], jax.Array], key: ja
     return traj
 
 
+# Row helpers for batched states stepped from Python (C MuJoCo, pybullet): a state is a pytree
+# whose leaves have the episodes on their first axis.
+
+
+def take_rows(state, idx: np.ndarray):
+    """The episodes `idx` of a batched state (numpy leaves)."""
+    return jax.tree_util.tree_map(lambda x: np.asarray(x)[idx], state)
+
+
+def put_rows(full, idx: np.ndarray, part):
+    """`full` (a copy, numpy leaves) with its rows `idx` replaced by `part`'s rows."""
+    def put(f, p):
+        f = np.array(f, copy=True)
+        f[idx] = np.asarray(p)
+        return f
+    return jax.tree_util.tree_map(put, full, part)
+
+
+def pow2_bucket(n: int) -> int:
+    """The power of two >= n: batch sizes that jitted per-batch functions compile for."""
+    return 1 << int(np.ceil(np.log2(max(n, 1))))
+
+
 def time_limit(t: jax.Array, episode_len: int) -> jax.Array:
     """Truncation flag after `t` steps."""
     return t >= episode_len

@@ -29,6 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from r2pac_jax.envs.base import put_rows
+
 
 @dataclasses.dataclass(frozen=True)
 class PPOLagConfig:
@@ -238,15 +240,6 @@ TRAJ_KEYS = ("obs", "nobs", "raw", "act", "logp", "r", "c", "term", "trunc", "do
              "nvr", "nvc")
 
 
-def _scatter(full, idx: np.ndarray, part):
-    """Rows `idx` of a numpy pytree replaced by `part`'s rows."""
-    def put(f, p):
-        f = np.array(f, copy=True)
-        f[idx] = np.asarray(p)
-        return f
-    return jax.tree_util.tree_map(put, full, part)
-
-
 def rollout_batch(env, policy: Callable, params, state, key, T: int):
     """T control steps of a batched env from Python (C MuJoCo), resetting episodes that end.
 
@@ -269,7 +262,7 @@ def rollout_batch(env, policy: Callable, params, state, key, T: int):
         if done.any():
             idx = np.flatnonzero(done)
             fresh = env.reset_batch(jax.random.split(k_reset, len(done))[idx])
-            nxt = _scatter(jax.tree_util.tree_map(np.asarray, nxt), idx,
+            nxt = put_rows(jax.tree_util.tree_map(np.asarray, nxt), idx,
                            jax.tree_util.tree_map(np.asarray, fresh))
         state = nxt
     traj = {k: np.stack(v) for k, v in out.items()}
