@@ -56,8 +56,7 @@ def main(argv=None) -> int:
     try:
         task = get_task(args.task)
         if args.source is None:
-            args.source = ("ppo-lagrangian" if task.collection is not None and task.has_env
-                           and not factory.has_scripted_source(task) else "scripted")
+            args.source = factory.default_source(task)
         n = args.trajectories or (task.collection.trajectories
                                   if args.source == "ppo-lagrangian" and task.collection
                                   else factory.default_trajectories(task))

@@ -50,8 +50,7 @@ def _source(task: TaskSpec, kind: str, physics: str = "auto") -> dict:
     if kind not in SOURCE_KINDS:
         raise FactoryError(f"unknown data source {kind!r}; choose one of {', '.join(SOURCE_KINDS)}")
     srcs = _sources()
-    learned = task.collection is not None and task.has_env
-    if task.name not in srcs and not learned:
+    if not has_source(task):
         raise FactoryError(f"no data source for task {task.name!r} yet; tasks with one: "
                            f"{', '.join(sorted(n for n in _all_names() if n != task.name))}. "
                            "Pass --dataset FILE or put DSRL's file in $DSRL_DATASET_DIR")
@@ -69,8 +68,7 @@ def _source(task: TaskSpec, kind: str, physics: str = "auto") -> dict:
 def _all_names() -> list[str]:
     from r2pac_jax.tasks import TASKS
 
-    return sorted(set(_sources()) | {n for n, t in TASKS.items()
-                                     if t.collection is not None and t.has_env})
+    return sorted(n for n, t in TASKS.items() if has_source(t))
 
 
 def has_source(task: TaskSpec) -> bool:
@@ -78,8 +76,10 @@ def has_source(task: TaskSpec) -> bool:
     return task.name in _sources() or (task.collection is not None and task.has_env)
 
 
-def has_scripted_source(task: TaskSpec) -> bool:
-    return task.name in _sources()
+def default_source(task: TaskSpec) -> str:
+    """`data make`'s source when none is named: the scripted controllers where a task has them
+    (today's default), else the learned recipe (the Bullet tasks)."""
+    return "scripted" if task.name in _sources() or not has_source(task) else "ppo-lagrangian"
 
 
 def cache_dir() -> Path:
