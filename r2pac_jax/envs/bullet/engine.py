@@ -114,8 +114,8 @@ class _World:
 
     def reset(self, pose: dict) -> dict:
         """The original's first reset after its construction, on a world built afresh: the
-        robot's and the task's placement, one simulation step. `pose`: {pos [3]} float64, the
-        task's sampled position.
+        robot's and the task's placement, one simulation step. `pose`: {pos [3], joints
+        [n_joints]} float64, the task's sampled position and the robot's joint positions.
 
         The original's later resets restore a saved state instead; pybullet's restoreState
         keeps the contact manifolds of the episode before (no manifold existed when the state
@@ -268,9 +268,7 @@ class BulletEnv:
         a new process): each such episode is reset again from its sampled position and joints
         and replays the actions it took (`physics["actions"]`), which gives the same simulation
         bit for bit (checked against the state's view)."""
-        ids, stamps = np.asarray(state.physics["world"]), np.asarray(state.physics["stamp"])
-        gone = np.array([w >= len(self._worlds) or self._worlds[w].stamp != s
-                         for w, s in zip(ids, stamps)], bool)
+        gone = self._gone(state)
         if not gone.any():
             return state
         t = np.asarray(state.t)
@@ -305,14 +303,13 @@ class BulletEnv:
         ids = np.asarray(state.physics["world"])
         n = ids.shape[0]
         actions = check_action(actions, self.act_dim, batch=n)
-        stamps = np.asarray(state.physics["stamp"])
-        for i, w in enumerate(ids):
-            if self._worlds[w].stamp != stamps[i]:
-                raise StaleStateError(
-                    f"episode {i} of this state is not the latest state of its simulation "
-                    "(it was stepped, reset or released since): the bullet backend keeps one "
-                    "live simulation per episode; step the state step_batch / reset_batch "
-                    "returned last")
+        gone = self._gone(state)
+        if gone.any():
+            raise StaleStateError(
+                f"episode {int(np.flatnonzero(gone)[0])} of this state is not the latest state "
+                "of its simulation (it was stepped, reset or released since): the bullet "
+                "backend keeps one live simulation per episode; step the state step_batch / "
+                "reset_batch returned last")
         before = {k: np.asarray(state.physics[k]) for k in self.view_keys}
         rows = [self._worlds[w].step(actions[i], before["pos"][i]) for i, w in enumerate(ids)]
         after = {k: np.stack([r[k] for r in rows]) for k in self.view_keys}
@@ -333,6 +330,12 @@ class BulletEnv:
                            record)
 
     # -- helpers ----------------------------------------------------------------------------
+    def _gone(self, state: EnvState) -> np.ndarray:
+        """[n] bool: episodes whose simulation this env no longer holds at the state's step."""
+        ids, stamps = np.asarray(state.physics["world"]), np.asarray(state.physics["stamp"])
+        return np.array([w >= len(self._worlds) or self._worlds[w].stamp != s
+                         for w, s in zip(ids, stamps)], bool)
+
     @staticmethod
     def _as_f32(view: dict) -> dict:
         return {k: jnp.asarray(v, jnp.float32) for k, v in view.items()}
