@@ -181,7 +181,7 @@ def test_same_keys_same_episodes_whatever_the_client():
 def test_an_episode_does_not_depend_on_the_one_before():
     """The original's reset restores a saved state but pybullet keeps the previous episode's
     contact manifold, so one-step episodes from the same position alternate there (its first
-    step's velocity differs by up to 0.16 m/s; reference_dump.py leak). Ours rebuilds the world per
+    step's velocity differs by 0.037 m/s; reference_dump.py leak). Ours rebuilds the world per
     episode: the same episode every time."""
     env = make_env(get_task("BallCircle"))
     a = np.array([[0.3, -0.7]], np.float32)

@@ -28,7 +28,7 @@ from r2pac_jax.envs.base import BackendUnavailableError, EnvState, check_action
 from r2pac_jax.envs.bullet.robots import ASSETS
 
 INSTALL = "pip install -e '.[bullet]' (or pip install pybullet==3.2.7)"
-MIB_PER_CLIENT = 29  # measured resident memory of one DIRECT client with its world
+MIB_PER_CLIENT = 29  # resident memory of one DIRECT client with its world (client_cost.py)
 _LIVE = [0]  # clients alive in this process, across envs
 
 
@@ -119,9 +119,10 @@ class _World:
 
         The original's later resets restore a saved state instead; pybullet's restoreState
         keeps the contact manifolds of the episode before (no manifold existed when the state
-        was saved), whose impulses warm-start the next episode's first steps (0.16 m/s on the
-        ball's first step, benchmarks/FIDELITY.md): an episode would depend on the one before
-        it in the same client. A world rebuilt for every episode (1-4 ms) has no history."""
+        was saved), whose impulses warm-start the next episode's first steps (benchmarks/
+        FIDELITY.md): an episode would depend on the one before it in the same client. A world
+        rebuilt for every episode (3.5-9 ms, benchmarks/fidelity_bullet/client_cost.py) has no
+        history."""
         pb, c = self.pb, self.cid
         if self.stepped:
             pb.resetSimulation(physicsClientId=c)
@@ -187,7 +188,7 @@ class BulletEnv:
         self.episode_len = task.episode_len
         self._worlds: list[_World] = []
         # the jitted rules close over the task only, never over the env: an env that goes out
-        # of scope is freed at once and disconnects its clients (~30 MB each)
+        # of scope is freed at once and disconnects its clients (~29 MiB each)
         self._split_init = jax.jit(jax.vmap(functools.partial(_split_init, task)))
         self._start = jax.jit(jax.vmap(functools.partial(_start_one, task)))
         self._outcome = jax.jit(jax.vmap(functools.partial(_outcome_one, task)))

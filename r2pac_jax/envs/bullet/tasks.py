@@ -69,8 +69,9 @@ class BulletTask:
 
     # -- reset ------------------------------------------------------------------------------
     def init(self, key: jax.Array):
-        """The reset's sampled position: (pose {pos [3]}, extras). The orientation follows from
-        it as the original sets it (`yaw`; the bullet backend repeats the original's calls)."""
+        """The reset's sample: (pose {pos [3], joints [n_joints]}, extras). The orientation
+        follows from the position as the original sets it (`yaw`; the bullet backend repeats
+        the original's calls)."""
         z = self.robot.init_xyz[2]
         key, kj = jax.random.split(key)
         if self.kind == "run":
