@@ -124,6 +124,9 @@ def test_data_cli_unknown_task_and_unwritable_cache(tmp_path, monkeypatch, capsy
     monkeypatch.undo()
     assert main(["make", "--task", "CarRun", "--source", "scripted"]) == 2  # learned only
     assert "no scripted data source" in capsys.readouterr().err
+    # without --source: the scripted controllers where a task has them, else the learned recipe
+    assert factory.default_source(registry.get_task("CarGoal1")) == "scripted"
+    assert factory.default_source(registry.get_task("CarRun")) == "ppo-lagrangian"
     blocker = tmp_path / "file"
     blocker.write_text("")
     monkeypatch.setenv("R2PAC_DATA_DIR", str(blocker / "sub"))
