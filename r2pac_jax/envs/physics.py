@@ -13,6 +13,7 @@ functions:
         def transition(self, before, after, action, extras)
             -> (reward, cost, terminated, extras)        # one control step's outcome
         def controls(self, action, extras) -> ctrl        # optional: action -> mjData.ctrl
+        def inputs(self, before, action, extras) -> dict  # optional: {"ctrl", "xfrc_applied"}
 
 `MjxEnv(task)` is a `JaxEnv` (its state's `physics` is an `mjx.Data`): jit it, vmap it, scan it.
 `MujocoEnv(task)` keeps one `mujoco.MjData` per episode and steps them from Python
@@ -60,6 +61,12 @@ class MjTask:
 
     def controls(self, action: jax.Array, extras: dict) -> jax.Array:
         return action
+
+    def inputs(self, before: dict, action: jax.Array, extras: dict) -> dict:
+        """What a control step holds fixed over its sub-steps: `ctrl` [nu] and, for tasks that
+        push bodies directly, `xfrc_applied` [nbody, 6] (world-frame force and torque at each
+        body's centre of mass). `before` is the view at the step's start."""
+        return {"ctrl": self.controls(action, extras)}
 
     def mjx_model(self, model):
         """The model given to MJX (a task may simplify it there, e.g. fewer solver iterations)."""
@@ -140,7 +147,7 @@ class MjxEnv(JaxEnv):
         mjx = self._mjx
         action = jnp.clip(action, -1.0, 1.0)
         before = self._view(state.physics)
-        data = state.physics.replace(ctrl=self.task.controls(action, state.info))
+        data = state.physics.replace(**self.task.inputs(before, action, state.info))
         data = jax.lax.fori_loop(0, self.task.frame_skip,  # mjx.step, RK4 rolled (mjx_lean)
                                  lambda _, d: mjx_lean.step(self.model, d), data)
         after = self._view(data)
@@ -206,8 +213,9 @@ class MujocoEnv:
             *jax.random.split(k))))
         self._observe = jax.jit(jax.vmap(task.observe))
         self._outcome = jax.jit(jax.vmap(self._outcome_one))
-        default_controls = type(task).controls is MjTask.controls
-        self._controls = None if default_controls else jax.jit(jax.vmap(task.controls))
+        default_inputs = (type(task).controls is MjTask.controls
+                          and type(task).inputs is MjTask.inputs)
+        self._inputs = None if default_inputs else jax.jit(jax.vmap(task.inputs))
 
     def _outcome_one(self, before, after, action, extras):
         reward, cost, terminated, extras = self.task.transition(before, after, action, extras)
@@ -270,11 +278,18 @@ class MujocoEnv:
 
         n = state.obs.shape[0]
         actions = np.clip(check_action(actions, self.act_dim, batch=n), -1.0, 1.0)
-        ctrl = (actions if self._controls is None else
-                np.asarray(self._controls(jnp.asarray(actions), state.info)))
+        before = {f: state.physics[f] for f in self.task.view_fields}
+        xfrc = None
+        if self._inputs is None:
+            ctrl = actions
+        else:
+            inputs = self._inputs(before, jnp.asarray(actions), state.info)
+            ctrl = np.asarray(inputs.get("ctrl", np.zeros((n, self.mj_model.nu))))
+            if "xfrc_applied" in inputs:
+                xfrc = np.asarray(inputs["xfrc_applied"], np.float64)
         fs = self.task.frame_skip
         control = np.repeat(np.asarray(ctrl, np.float64)[:, None, :], fs, axis=1)
-        if self._use_rollout:
+        if self._use_rollout and xfrc is None:
             states, sens = rollout.rollout(self.mj_model, self._datas[:max(1, min(n, len(
                 self._datas)))], state.physics["state"], control, nstep=fs,
                 persistent_pool=True)
@@ -293,6 +308,7 @@ class MujocoEnv:
                     mujoco.mj_setState(m, d, state.physics["state"][i], self._spec)
                     d.qacc_warmstart[:] = 0.0  # cold start, as rollout does: no leak
                     d.ctrl[:] = control[i, 0]
+                    d.xfrc_applied[:] = 0.0 if xfrc is None else xfrc[i]
                     mujoco.mj_step(m, d, nstep=fs)
                     mujoco.mj_getState(m, d, states[i], self._spec)
                     for f in after:
@@ -307,7 +323,6 @@ class MujocoEnv:
 
                     self._pool = ThreadPoolExecutor(len(self._datas))
                 list(self._pool.map(run, self._datas[:k], np.array_split(np.arange(n), k)))
-        before = {f: state.physics[f] for f in self.task.view_fields}
         reward, cost, terminated, extras, obs = self._outcome(before, after, actions, state.info)
         return self._make_state(states, after, extras, obs, reward, cost, terminated,
                                 state.t + 1, state.key)

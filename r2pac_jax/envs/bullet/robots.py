@@ -217,6 +217,11 @@ class Ant(Robot):
     view_keys = ("joints", "feet")
     torque = 2.5 * 100.0  # max_force x power_coefficient
     feet_names = ("front_left_foot", "front_right_foot", "left_back_foot", "right_back_foot")
+    # joint ranges [8, 2] (rad) as pybullet stores ant.xml's degrees (float32); `setup` reads
+    # them off the loaded body (the MuJoCo backends use these)
+    limits = np.deg2rad(np.array([(-40, 40), (30, 100), (-40, 40), (-100, -30), (-40, 40),
+                                  (-100, -30), (-40, 40), (30, 100)], np.float64)
+                        ).astype(np.float32).astype(np.float64)
 
     def load(self, pb, cid):
         import pybullet_data

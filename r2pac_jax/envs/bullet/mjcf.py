@@ -1,0 +1,166 @@
+"""MuJoCo re-creations of Bullet-Safety-Gym's worlds and robots (the `mujoco` and `mjx` backends
+of the Bullet tasks), built from the numbers pybullet 3.2.7 itself uses for the original's
+bodies, not from the files' nominal values: pybullet computes a link's inertia from the bounding
+box of its collision shape grown by a 0.04 m margin (the Ant's legs, the Drone's box and rotors)
+and its mass from density 1000 (the Ant: 182 kg in all, not ant.xml's density 5). Every number
+below was read with `getDynamicsInfo` / `getJointInfo` on the original's bodies as the bullet
+backend loads them; `tests/test_bullet_mujoco.py` checks them against pybullet when it is
+installed.
+
+Where MuJoCo has no equivalent of Bullet's model (each gap is measured in benchmarks/FIDELITY.md,
+"Bullet tasks in MuJoCo"):
+- friction: Bullet multiplies the two bodies' coefficients (and, for rolling friction, adds the
+  cross products); MuJoCo takes the larger. The plane and walls carry the combined values for
+  the one robot in the model and the robot's own geoms carry none, so every robot-world contact
+  gets Bullet's combined coefficient.
+- restitution (the Ball's 0.7 x the plane's 0.5): MuJoCo's contacts are soft and do not bounce;
+  left out. The robots roll or walk on the ground; bounces happen only on falls.
+- contact softness: Bullet's impulse solver with ERP 0.9 and 5 iterations against MuJoCo's soft
+  constraints with their default solref (time constant 0.02 s, clamped to two steps).
+- collisions: robot-plane and robot-wall only (no self-collision; the original enables it for
+  the Ant, whose legs rarely meet). The Drone's rotor discs do not collide: MJX (mujoco 4.0.0)
+  has no box-cylinder test, and its plane-cylinder test reported a 9.5 cm penetration for a
+  disc 18.5 cm above the plane (a DroneRun reset, which then launched the drone at 2 m/s); the
+  discs touch the ground only when the drone tips past ~35 degrees, and their ground contact
+  for the reward is still read off the geometry (mujoco_env.py).
+- Bullet's velocity damping of every moving body, m v 0.04 (1 + |v|) and I w 0.04 (1 + |w|)
+  (btMultiBody's defaults), is applied to the base only, once per control step (`inputs` in
+  mujoco.py); the Ant's and Drone's links go undamped.
+- the Drone's rotor velocity motors (a constraint that reaches the target speed within its force
+  limit in one sub-step) are a joint damping D plus a motor force D x target, with
+  D = 100 I / dt, integrated implicitly by MuJoCo's Euler step: 99% of the way in one sub-step;
+  the force limit (23.4 N m) never binds after the first step (a 10% speed change needs 0.6% of
+  it), so it is left out.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+# combined friction (Bullet: robot x plane 0.8; rolling: robot's rolling x plane's friction)
+PLANE_FRICTION = 0.8
+WALL_FRICTION = 0.5  # pybullet's default for a URDF without a <contact> block
+
+# -- robots: pybullet's own numbers (getDynamicsInfo / getJointInfo after loading) ------------------
+
+BALL = dict(mass=0.3, inertia=(0.03, 0.03, 0.03), radius=0.5, friction=1.1, rolling=0.03)
+
+ANT_TORSO = dict(mass=65.44984694978736, inertia=(1.636246173744684,) * 3, radius=0.25)
+ANT_LEG = dict(mass=7.83155043240011,
+               inertia=(0.16394045425561246, 0.16394045425561246, 0.2526980266008083))
+ANT_FOOT = dict(mass=13.518440423760284,
+                inertia=(0.5263179486691557, 0.5263179486691557, 0.9228588731378696))
+ANT_FRICTION = 1.5
+ANT_CAPSULE_RADIUS = 0.08
+# (leg direction (x, y), ankle axis, hip range deg, ankle range deg) in ant.xml's order, which is
+# the original's motor order: hip_1, ankle_1, ..., hip_4, ankle_4
+ANT_LEGS = (((1, 1), (-1, 1, 0), (-40, 40), (30, 100)),
+            ((-1, 1), (1, 1, 0), (-40, 40), (-100, -30)),
+            ((-1, -1), (-1, 1, 0), (-40, 40), (-100, -30)),
+            ((1, -1), (1, 1, 0), (-40, 40), (30, 100)))
+ANT_FEET = ("ankle_geom_1", "ankle_geom_2", "ankle_geom_3", "ankle_geom_4")
+
+DRONE_BODY = dict(mass=1.4 + 1e-6, inertia=(0.05548666666666664, 0.05548666666666664,
+                                            0.08399999999999995),
+                  half_size=(0.3, 0.3, 0.17))  # quadcopter.urdf's 0.3 x 0.3 x 0.17 box, x 2
+DRONE_ROTOR = dict(mass=0.005, inertia=(0.00013358832798980003, 0.00013358832798980003,
+                                        0.00026696332265480007),
+                   radius=0.28, half_height=0.005)
+DRONE_FRICTION = 0.5
+DRONE_ROTORS = ((0.34, 0.0, 0.02), (0.0, -0.34, 0.02), (-0.34, 0.0, 0.02), (0.0, 0.34, 0.02))
+ROTOR_DAMPING_STEPS = 100.0  # D = 100 I / dt (see the module docstring)
+
+
+def _v(x) -> str:
+    return " ".join(repr(float(a)) for a in np.ravel(x))
+
+
+def _inertial(d: dict, pos=(0.0, 0.0, 0.0)) -> str:
+    return (f'<inertial pos="{_v(pos)}" mass="{d["mass"]!r}" '
+            f'diaginertia="{_v(d["inertia"])}"/>')
+
+
+def _ball(task) -> tuple:
+    b = BALL
+    body = (f'<body name="robot" pos="0 0 {b["radius"]!r}"><freejoint name="root"/>'
+            f'{_inertial(b)}<geom name="ball" type="sphere" size="{b["radius"]!r}" '
+            f'contype="3" conaffinity="0" condim="6" friction="0 0 0"/></body>')
+    return body, "", b["friction"], b["rolling"]
+
+
+def _ant(task) -> tuple:
+    r = ANT_CAPSULE_RADIUS
+    legs = []
+    for i, ((sx, sy), axis, hip, ankle) in enumerate(ANT_LEGS, start=1):
+        d = np.array([sx, sy, 0.0]) * 0.2
+        legs.append(
+            f'<body name="leg_{i}">{_inertial(ANT_LEG, d / 2)}'
+            f'<geom name="aux_geom_{i}" type="capsule" fromto="0 0 0 {_v(d)}" size="{r}"/>'
+            f'<body name="aux_{i}" pos="{_v(d)}">{_inertial(ANT_LEG, d / 2)}'
+            f'<joint name="hip_{i}" type="hinge" axis="0 0 1" range="{hip[0]} {hip[1]}"/>'
+            f'<geom name="leg_geom_{i}" type="capsule" fromto="0 0 0 {_v(d)}" size="{r}"/>'
+            f'<body name="foot_{i}" pos="{_v(d)}">{_inertial(ANT_FOOT, d)}'
+            f'<joint name="ankle_{i}" type="hinge" axis="{_v(axis)}" '
+            f'range="{ankle[0]} {ankle[1]}"/>'
+            f'<geom name="{ANT_FEET[i - 1]}" type="capsule" fromto="0 0 0 {_v(2 * d)}" '
+            f'size="{r}"/></body></body></body>')
+    t = ANT_TORSO
+    body = (f'<body name="robot" pos="0 0 0.75"><freejoint name="root"/>{_inertial(t)}'
+            f'<geom name="torso" type="sphere" size="{t["radius"]!r}"/>{"".join(legs)}</body>')
+    motors = "".join(f'<motor name="m_{j}" joint="{j}" gear="1"/>' for i in range(1, 5)
+                     for j in (f"hip_{i}", f"ankle_{i}"))
+    return body, motors, ANT_FRICTION, 0.0
+
+
+def _drone(task) -> tuple:
+    b, r = DRONE_BODY, DRONE_ROTOR
+    damping = ROTOR_DAMPING_STEPS * r["inertia"][2] / task.time_step
+    rotors = "".join(
+        f'<body name="rotor_{i}" pos="{_v(p)}">{_inertial(r)}'
+        f'<joint name="rotor_{i}" type="hinge" axis="0 0 1" damping="{damping!r}"/>'
+        f'<geom name="rotor_{i}" type="cylinder" size="{r["radius"]!r} {r["half_height"]!r}" '
+        f'contype="0"/></body>' for i, p in enumerate(DRONE_ROTORS))
+    body = (f'<body name="robot" pos="0 0 0.17"><freejoint name="root"/>{_inertial(b)}'
+            f'<geom name="box" type="box" size="{_v(np.array(b["half_size"]))}"/>{rotors}'
+            f'</body>')
+    motors = "".join(f'<motor name="m_{i}" joint="rotor_{i}" gear="1"/>' for i in range(4))
+    return body, motors, DRONE_FRICTION, 0.0
+
+
+ROBOT_BODIES = {"Ball": _ball, "Ant": _ant, "Drone": _drone}
+
+
+def has_model(robot_name: str) -> bool:
+    return robot_name in ROBOT_BODIES
+
+
+def model_xml(task) -> str:
+    """The MJCF of one Bullet task (a `tasks.BulletTask`): its world, its robot, its physics
+    step (the sub-step `time_step`; the env steps `frame_skip` of them per control step)."""
+    robot = task.robot.name
+    if robot not in ROBOT_BODIES:
+        raise ValueError(f"no MuJoCo model of the {robot} (the models exist for "
+                         f"{', '.join(ROBOT_BODIES)})")
+    body, actuators, friction, rolling = ROBOT_BODIES[robot](task)
+    ground = (f'<geom name="floor" type="plane" size="250 250 0.1" contype="0" conaffinity="1" '
+              f'condim="{6 if rolling else 3}" '
+              f'friction="{friction * PLANE_FRICTION!r} {rolling * PLANE_FRICTION!r} '
+              f'{rolling * PLANE_FRICTION!r}"/>')
+    walls = ""
+    if task.world == "octagon":  # 8 boxes 0.2 x 10 x 2 m centred 12 m out, every 45 degrees
+        for k, yaw in enumerate(np.linspace(0, 7 / 8 * 2 * np.pi, num=8)):
+            c, s = np.cos(yaw), np.sin(yaw)
+            walls += (f'<geom name="wall_{k}" type="box" size="0.1 5 1" pos="{_v((12 * c, 12 * s, 1))}" '
+                      f'euler="0 0 {float(np.degrees(yaw))!r}" contype="0" conaffinity="2" '
+                      f'friction="{friction * WALL_FRICTION!r} 0 0"/>')
+    return (f'<mujoco model="{task.name}"><compiler angle="degree" autolimits="true"/>'
+            f'<option timestep="{task.time_step!r}" gravity="0 0 -9.81" integrator="Euler"/>'
+            f'<default><geom contype="3" conaffinity="0" friction="0 0 0" margin="0"/></default>'
+            f'<worldbody>{ground}{walls}{body}</worldbody>'
+            f'<actuator>{actuators}</actuator></mujoco>')
+
+
+def load_model(task):
+    """mujoco.MjModel of `model_xml(task)`."""
+    import mujoco
+
+    return mujoco.MjModel.from_xml_string(model_xml(task))

@@ -1,0 +1,124 @@
+"""The MuJoCo re-creations of the Bullet tasks (`--physics mujoco` / `mjx`): models built from
+pybullet's own numbers, the rules' view of MuJoCo's state, resets, the measured gap to the
+original's engine staying where benchmarks/FIDELITY.md puts it, and bad input."""
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from r2pac_jax.envs.base import BackendUnavailableError
+from r2pac_jax.envs.bullet import make_env, mjcf
+from r2pac_jax.envs.bullet.mujoco_env import euler_from_quat, quat_from_euler
+from r2pac_jax.tasks import get_task
+
+pb = pytest.importorskip("pybullet")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "fidelity_bullet"))
+import mujoco_gap  # noqa: E402
+
+
+def _pybullet_bodies(robot_name):
+    """[(mass, sorted diag inertia)] of the original's moving links with mass, as loaded."""
+    from r2pac_jax.envs.bullet.robots import ROBOTS
+
+    c = pb.connect(pb.DIRECT)
+    try:
+        body = ROBOTS[robot_name].load(pb, c)
+        out = []
+        for j in range(-1, pb.getNumJoints(body, physicsClientId=c)):
+            mass, _, inertia = pb.getDynamicsInfo(body, j, physicsClientId=c)[:3]
+            if mass > 1e-3:
+                out.append((mass, tuple(sorted(inertia))))
+        return sorted(out)
+    finally:
+        pb.disconnect(c)
+
+
+@pytest.mark.parametrize("task", ["BallRun", "AntRun", "DroneRun"])
+def test_models_carry_pybullets_masses_and_inertias(task):
+    """Every massive link of the original has a MuJoCo body (or a welded pair of them, which
+    pybullet splits into a massless joint link and a fixed child) with its mass and inertia."""
+    m = make_env(get_task(task), "mujoco").mj_model
+    ours = sorted((float(m.body_mass[b]), tuple(sorted(m.body_inertia[b])))
+                  for b in range(1, m.nbody) if m.body_mass[b] > 1e-3)
+    theirs = _pybullet_bodies(get_task(task).name.replace("Run", ""))
+    assert len(ours) == len(theirs)
+    for (ma, ia), (mb, ib) in zip(ours, theirs):
+        assert ma == pytest.approx(mb, rel=1e-6)
+        np.testing.assert_allclose(ia, ib, rtol=1e-6)
+
+
+def test_euler_helpers_match_pybullet():
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        rpy = np.asarray(euler_from_quat(jnp.asarray(q)))
+        np.testing.assert_allclose(rpy, pb.getEulerFromQuaternion(q), atol=2e-6)
+        np.testing.assert_allclose(np.asarray(quat_from_euler(jnp.asarray(rpy))),
+                                   pb.getQuaternionFromEuler(rpy), atol=2e-6)
+
+
+@pytest.mark.parametrize("task", ["BallCircle", "DroneRun"])
+def test_reset_starts_where_the_bullet_backend_starts(task):
+    """The same keys give the same sampled start on both engines (the shared reset law); after
+    the settling step the robot is at rest on the ground in both."""
+    keys = jax.random.split(jax.random.PRNGKey(7), 3)
+    a = make_env(get_task(task), "bullet").reset_batch(keys)
+    b = make_env(get_task(task), "mujoco").reset_batch(keys)
+    np.testing.assert_allclose(b.obs[:, :2], a.obs[:, :2], atol=1e-4)  # 0.1 xy
+    assert (b.t == 0).all() and (b.reward == 0).all() and (b.cost == 0).all()
+
+
+def test_same_keys_same_episodes():
+    env = make_env(get_task("AntRun"), "mujoco")
+    keys = jax.random.split(jax.random.PRNGKey(1), 2)
+    acts = np.random.default_rng(0).uniform(-1, 1, (5, 2, 8)).astype(np.float32)
+    runs = []
+    for _ in range(2):
+        s = env.reset_batch(keys)
+        for a in acts:
+            s = env.step_batch(s, a)
+        runs.append((s.obs, s.reward))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+
+
+# the gap measured by mujoco_gap.py (benchmarks/FIDELITY.md), with headroom: one step from the
+# original's states, median over states of the largest observation / reward difference
+GAP = {"BallRun": (0.01, 0.05), "DroneRun": (0.02, 0.01), "AntRun": (0.2, 0.15)}
+
+
+@pytest.mark.parametrize("task", sorted(GAP))
+def test_one_step_gap_stays_where_measured(task):
+    r = mujoco_gap.one_step(task, episodes=2, seed=0)
+    obs, reward = GAP[task]
+    assert r["obs_median"] < obs and r["reward_median"] < reward, r
+    assert r["cost_disagree"] < 0.02, r
+
+
+def test_bad_physics():
+    with pytest.raises(BackendUnavailableError, match="physics bullet"):
+        make_env(get_task("CarRun"), "mjx")
+    with pytest.raises(BackendUnavailableError, match="auto, bullet, mjx or mujoco"):
+        make_env(get_task("BallRun"), "brax")
+    assert not mjcf.has_model("Car")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", ["BallRun", "DroneRun"])
+def test_mjx_matches_c_mujoco(task):
+    """The MJX backend runs the same model as C MuJoCo (float32 against float64)."""
+    mjx_env, c_env = make_env(get_task(task), "mjx"), make_env(get_task(task), "mujoco")
+    keys = jax.random.split(jax.random.PRNGKey(3), 4)
+    s = jax.jit(jax.vmap(mjx_env.reset))(keys)
+    s2 = c_env.reset_batch(keys)
+    step = jax.jit(jax.vmap(mjx_env.step))
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        a = rng.uniform(-1, 1, (4, mjx_env.act_dim)).astype(np.float32)
+        s, s2 = step(s, jnp.asarray(a)), c_env.step_batch(s2, a)
+    np.testing.assert_allclose(np.asarray(s.obs), s2.obs, atol=1e-3)
+    np.testing.assert_allclose(np.asarray(s.reward), s2.reward, atol=1e-3)
