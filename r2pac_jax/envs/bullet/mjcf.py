@@ -24,13 +24,18 @@ Where MuJoCo has no equivalent of Bullet's model (each gap is measured in benchm
   discs touch the ground only when the drone tips past ~35 degrees, and their ground contact
   for the reward is still read off the geometry (mujoco_env.py).
 - Bullet's velocity damping of every moving body, m v 0.04 (1 + |v|) and I w 0.04 (1 + |w|)
-  (btMultiBody's defaults), is applied to the base only, once per control step (`inputs` in
-  mujoco.py); the Ant's and Drone's links go undamped.
+  (btMultiBody's defaults), is applied once per control step (`inputs` in mujoco_env.py) to the
+  base and to the Drone's rotors, where it matters: a rotor at hover speed (461 rad/s) is braked
+  by 2.3 N m, which its motor answers, and the difference between rotors at different speeds
+  yaws the drone. The Ant's legs go undamped.
 - the Drone's rotor velocity motors (a constraint that reaches the target speed within its force
-  limit in one sub-step) are a joint damping D plus a motor force D x target, with
-  D = 100 I / dt, integrated implicitly by MuJoCo's Euler step: 99% of the way in one sub-step;
-  the force limit (23.4 N m) never binds after the first step (a 10% speed change needs 0.6% of
-  it), so it is left out.
+  limit in one sub-step) are a joint damping D plus a motor force D x target (and the rotor's
+  damping at the target speed), with D = 10 I / dt, integrated implicitly by MuJoCo's Euler
+  step: 91% of the way in one sub-step. A stiffer D (100 I / dt) put so large an explicit
+  acceleration before the implicit correction into the contact solve that a drone resting on
+  the ground with a yawing action was thrown up at 5.5 m/s; at 10 I / dt the one-step errors were
+  smallest (3 I / dt and I / dt: larger). The force limit (23.4 N m) never binds after the first
+  step (a 10% speed change needs 0.6% of it), so it is left out.
 """
 from __future__ import annotations
 
@@ -67,7 +72,7 @@ DRONE_ROTOR = dict(mass=0.005, inertia=(0.00013358832798980003, 0.00013358832798
                    radius=0.28, half_height=0.005)
 DRONE_FRICTION = 0.5
 DRONE_ROTORS = ((0.34, 0.0, 0.02), (0.0, -0.34, 0.02), (-0.34, 0.0, 0.02), (0.0, 0.34, 0.02))
-ROTOR_DAMPING_STEPS = 100.0  # D = 100 I / dt (see the module docstring)
+ROTOR_DAMPING_STEPS = 10.0  # D = 10 I / dt (see the module docstring)
 
 
 def _v(x) -> str:

@@ -7,7 +7,7 @@ turns MuJoCo's state into the view the shared rules read (position, (x, y, z, w)
 world-frame velocities, the Ant's joints and foot contacts, the Drone's Euler angles, rotor
 speeds and ground contacts) and the action into MuJoCo's inputs (the Ball's world-frame push,
 the Ant's torques, the Drone's rotor motors and propeller thrust, Bullet's velocity damping of
-the base). So observation, reward, cost and termination are the very functions the bullet
+the base and rotors). So observation, reward, cost and termination are the very functions the bullet
 backend runs; only the physics differs, and that gap is measured (benchmarks/FIDELITY.md,
 `benchmarks/fidelity_bullet/mujoco_gap.py`).
 
@@ -101,6 +101,7 @@ class BulletMjTask(MjTask):
                                                          for i in range(4)]
             self.rotor_bodies = [body(f"rotor_{i}") for i in range(4)]
             self.rotor_damping = np.array(m.dof_damping[6:10])
+            self.rotor_inertia = np.array(m.body_inertia[self.rotor_bodies[0]])
         else:
             self.touch = []
         self.geom_size = np.array(m.geom_size)
@@ -181,12 +182,18 @@ class BulletMjTask(MjTask):
         elif name == "Drone":
             r = self.robot
             target = jnp.asarray(r.hover) * (1.0 + r.action_range * a)
-            ctrl = jnp.asarray(self.rotor_damping) * target
             axis = R[:, 2]
+            spin_inertia = self.rotor_inertia[2]
+            # the motor also answers the rotor's damping at the target speed (feed-forward)
+            brake = spin_inertia * target * DAMPING * (1 + jnp.abs(target))
+            ctrl = jnp.asarray(self.rotor_damping) * target + brake
             climb = jnp.dot(v["vel"], axis)
             thrust = jax.vmap(lambda s: _thrust(r, s, climb))(target * jnp.asarray(r.directions))
+            rotor_i = R @ jnp.diag(jnp.asarray(self.rotor_inertia)) @ R.T
             for i, bid in enumerate(self.rotor_bodies):
+                w = v["angvel"] + v["rotors"][i] * axis  # the rotor's own angular velocity
                 xfrc = xfrc.at[bid, :3].add(thrust[i] * axis)
+                xfrc = xfrc.at[bid, 3:].add(-rotor_i @ w * DAMPING * (1 + jnp.linalg.norm(w)))
         keep = ~extras["settle"]  # the reset's step runs without inputs
         return {"ctrl": jnp.where(keep, ctrl, 0.0), "xfrc_applied": jnp.where(keep, xfrc, 0.0)}
 
