@@ -80,6 +80,8 @@ def test_dsrl_schedule_and_its_errors():
         "bullet", 10_000_000, 80.0, 886)
     assert ball.schedule.limit(0) == 5.0 and ball.schedule.limit(10_000_000) == 200.0
     assert ball.steps_per_update == 10_000 and ball.ppo.rollout_len == 200
+    with pytest.raises(DatasetError, match="made on the original's engine"):
+        collect.make_spec(get_task("BallCircle"), physics="mjx")  # MuJoCo: evaluation only
 
 
 def _arrays(path):

@@ -115,6 +115,12 @@ def make_spec(task: TaskSpec, trajectories: Optional[int] = None, env_steps: Opt
     if physics == "auto":
         physics = ("auto" if task.family == "demo" else "bullet" if task.family == "bullet"
                    else "mujoco" if jax.default_backend() == "cpu" else "mjx")
+    if task.family == "bullet" and physics != "bullet":
+        # the file's name does not say which engine made it, and train would evaluate it on
+        # the original's: the MuJoCo re-creations serve evaluation only
+        raise DatasetError(f"{task.name}: data for the Bullet tasks is made on the original's "
+                           f"engine (--physics bullet or auto), not {physics!r}: the MuJoCo "
+                           "re-creations (mujoco, mjx) are for evaluation")
     return GenSpec(task.name, int(seed), n, budget, physics, sched, float(c.cost_cap),
                    float(c.reward_min), cfg, int(checkpoint_every))
 
