@@ -83,7 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--physics", default="auto", help="auto | mjx | mujoco | jax | bullet: the simulator of evaluation rollouts "
                     "(auto: C MuJoCo on a CPU and MJX on an accelerator for MuJoCo tasks, "
                     "pybullet for the Bullet tasks, whose mjx / mujoco are MuJoCo re-creations "
-                    "of the Ball, Ant and Drone: benchmarks/FIDELITY.md)")
+                    "of the original's robots: benchmarks/FIDELITY.md)")
     ap.add_argument("--eval-episodes", type=int, default=None)
     ap.add_argument("--eval-every", type=int, default=None)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",

@@ -88,7 +88,8 @@ def test_same_keys_same_episodes():
 
 # the gap measured by mujoco_gap.py (benchmarks/FIDELITY.md), with headroom: one step from the
 # original's states, median over states of the largest observation / reward difference
-GAP = {"BallRun": (0.01, 0.05), "DroneRun": (0.02, 0.01), "AntRun": (0.2, 0.15)}
+GAP = {"BallRun": (0.01, 0.05), "DroneRun": (0.02, 0.01), "AntRun": (0.2, 0.15),
+       "CarRun": (0.08, 0.06)}
 
 
 @pytest.mark.parametrize("task", sorted(GAP))
@@ -99,17 +100,32 @@ def test_one_step_gap_stays_where_measured(task):
     assert r["cost_disagree"] < 0.02, r
 
 
+def test_car_model_carries_pybullets_numbers():
+    """The Car's chassis and wheels carry pybullet's masses and inertias; the differentials'
+    parts become point masses, so the total mass is the original's."""
+    m = make_env(get_task("CarRun"), "mujoco").mj_model
+    theirs = _pybullet_bodies("Car")
+    assert m.body_subtreemass[1] == pytest.approx(sum(ma for ma, _ in theirs), rel=1e-9)
+    chassis = int(m.body("robot").id)
+    ma, ia = float(m.body_mass[chassis]), sorted(m.body_inertia[chassis])
+    assert any(ma == pytest.approx(mb) and np.allclose(ia, ib, rtol=1e-9) for mb, ib in theirs)
+    for name in ("rear_left", "rear_right", "front_left", "front_right"):
+        b = int(m.body(name).id)
+        assert m.body_mass[b] == pytest.approx(0.34055)
+        np.testing.assert_allclose(sorted(m.body_inertia[b]), sorted(mjcf.CAR_WHEEL["inertia"]))
+
+
 def test_bad_physics():
-    with pytest.raises(BackendUnavailableError, match="physics bullet"):
-        make_env(get_task("CarRun"), "mjx")
     with pytest.raises(BackendUnavailableError, match="auto, bullet, mjx or mujoco"):
         make_env(get_task("BallRun"), "brax")
-    assert not mjcf.has_model("Car")
+    assert all(mjcf.has_model(r) for r in ("Ball", "Car", "Drone", "Ant"))
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("task", ["BallRun", "DroneRun"])
-def test_mjx_matches_c_mujoco(task):
+# control steps compared: the Car's wheel contacts and the Ant's feet amplify float32's
+# rounding (MJX) against float64's (C MuJoCo) to visible differences after ~5 steps
+@pytest.mark.parametrize("task,steps", [("BallRun", 10), ("DroneRun", 10), ("CarRun", 4)])
+def test_mjx_matches_c_mujoco(task, steps):
     """The MJX backend runs the same model as C MuJoCo (float32 against float64)."""
     mjx_env, c_env = make_env(get_task(task), "mjx"), make_env(get_task(task), "mujoco")
     keys = jax.random.split(jax.random.PRNGKey(3), 4)
@@ -117,7 +133,7 @@ def test_mjx_matches_c_mujoco(task):
     s2 = c_env.reset_batch(keys)
     step = jax.jit(jax.vmap(mjx_env.step))
     rng = np.random.default_rng(0)
-    for _ in range(10):
+    for _ in range(steps):
         a = rng.uniform(-1, 1, (4, mjx_env.act_dim)).astype(np.float32)
         s, s2 = step(s, jnp.asarray(a)), c_env.step_batch(s2, a)
     np.testing.assert_allclose(np.asarray(s.obs), s2.obs, atol=1e-3)

@@ -37,8 +37,9 @@ from r2pac_jax.envs.physics import MujocoEnv  # noqa: E402
 from r2pac_jax.tasks import get_task  # noqa: E402
 
 
-def raw_states(env, state) -> tuple:
-    """qpos [n, nq], qvel [n, nv] (MuJoCo's layout) of the bullet backend's episodes."""
+def raw_states(env, state, mj_task) -> tuple:
+    """qpos [n, nq], qvel [n, nv] (the MuJoCo model's layout, `mj_task`: a BulletMjTask) of the
+    bullet backend's episodes."""
     qpos, qvel = [], []
     for w in np.asarray(state.physics["world"]):
         world = env._worlds[int(w)]
@@ -47,8 +48,8 @@ def raw_states(env, state) -> tuple:
         vel, ang = pb.getBaseVelocity(b, physicsClientId=c)
         R = np.array(pb.getMatrixFromQuaternion(quat)).reshape(3, 3)
         joints = [pb.getJointState(b, j, physicsClientId=c)[:2] for j in getattr(world.robot, "motors", [])]
-        jq = [q for q, _ in joints]
-        jv = [v for _, v in joints]
+        jq = np.asarray(mj_task.joints_from_bullet(np.array([q for q, _ in joints])))
+        jv = np.asarray(mj_task.joints_from_bullet(np.array([v for _, v in joints])))
         qpos.append(np.concatenate([pos, [quat[3], quat[0], quat[1], quat[2]], jq]))
         qvel.append(np.concatenate([vel, R.T @ np.array(ang), jv]))
     return np.array(qpos), np.array(qvel)
@@ -100,7 +101,7 @@ def one_step(name: str, episodes: int, seed: int) -> dict:
     rows = dict(qpos=[], qvel=[], act=[], obs=[], reward=[], cost=[])
     done = np.zeros(episodes, bool)
     for _ in range(T):
-        qpos, qvel = raw_states(bullet, state)
+        qpos, qvel = raw_states(bullet, state, mj.task)
         a = rng.uniform(-1, 1, (episodes, spec.act_dim)).astype(np.float32)
         nxt = bullet.step_batch(state, a)
         live = ~done

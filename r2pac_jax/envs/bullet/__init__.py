@@ -4,8 +4,8 @@
 `bullet` runs the original's engine, pybullet 3.2.7 (an optional dependency: `pip install -e
 '.[bullet]'`), one client per episode on the CPU (`engine.py`); `auto` picks it everywhere, as
 the faithful path. `mjx` (JAX, for accelerators) and `mujoco` (C MuJoCo on the CPU) run MuJoCo
-re-creations of the Ball, Ant and Drone (`mjcf.py`, `mujoco_env.py`; no Car model yet), whose
-scores are not interchangeable with the original's. The tasks' rules are pure JAX over a view of
+re-creations of the four robots (`mjcf.py`, `mujoco_env.py`), whose scores are not
+interchangeable with the original's. The tasks' rules are pure JAX over a view of
 the robot's state (`tasks.py`, `robots.py`), shared by all backends. Fidelity against the
 original: benchmarks/FIDELITY.md ("Bullet tasks", "Bullet tasks in MuJoCo").
 """

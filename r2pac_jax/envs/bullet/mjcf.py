@@ -28,6 +28,18 @@ Where MuJoCo has no equivalent of Bullet's model (each gap is measured in benchm
   base and to the Drone's rotors, where it matters: a rotor at hover speed (461 rad/s) is braked
   by 2.3 N m, which its motor answers, and the difference between rotors at different speeds
   yaws the drone. The Ant's legs go undamped.
+- the Car's drivetrain (CAR_DRIVE_FORCE, car_drive_fit.py): each axle's two wheels are driven
+  as an open differential (a velocity servo on their mean speed, target 40 a rad/s) with a
+  force limit fitted to the original's straight-line acceleration, the one fitted number of
+  these models; the original's eight gear constraints (rings, spiders, side gears) have no
+  MuJoCo equivalent that reproduces what pybullet makes of them (they are not satisfiable
+  together, and its solver's compromise passes on a fraction of the motors' 20 N m). Its
+  steering servos follow pybullet's position control (10% of the error per sub-step, by a
+  stiff velocity servo on the error); the chassis collides through the convex hull of the
+  original's mesh, as in pybullet, the wheels as cylinders; the differentials' rings, spiders
+  and side gears are point masses on the chassis (their spin inertia, under 3e-4 kg m^2, is
+  dropped); the wheels' contact stiffness and damping (300000, 1000) are MuJoCo's default
+  soft contact instead.
 - the Drone's rotor velocity motors (a constraint that reaches the target speed within its force
   limit in one sub-step) are a joint damping D plus a motor force D x target (and the rotor's
   damping at the target speed), with D = 10 I / dt, integrated implicitly by MuJoCo's Euler
@@ -40,6 +52,8 @@ Where MuJoCo has no equivalent of Bullet's model (each gap is measured in benchm
 from __future__ import annotations
 
 import numpy as np
+
+from r2pac_jax.envs.bullet.robots import ASSETS
 
 # combined friction (Bullet: robot x plane 0.8; rolling: robot's rolling x plane's friction)
 PLANE_FRICTION = 0.8
@@ -72,6 +86,18 @@ DRONE_ROTOR = dict(mass=0.005, inertia=(0.00013358832798980003, 0.00013358832798
                    radius=0.28, half_height=0.005)
 DRONE_FRICTION = 0.5
 DRONE_ROTORS = ((0.34, 0.0, 0.02), (0.0, -0.34, 0.02), (-0.34, 0.0, 0.02), (0.0, 0.34, 0.02))
+CAR_CHASSIS = dict(mass=4.0, inertia=(0.13394400657767078, 0.508479024071038, 0.6193590247174502),
+                   friction=0.5)
+CAR_WHEEL = dict(mass=0.34055, inertia=(0.0032215177336392866, 0.0032215177336392866,
+                                        0.00531462308741507),
+                 radius=0.15, half_width=0.0675, front_friction=1.1, rear_friction=0.7)
+# the force limit of each axle's drive (N m on the mean wheel speed): fitted to the original's
+# speed after 1 s of full throttle (benchmarks/fidelity_bullet/car_drive_fit.py: 1.401); the
+# original's motors have 20, which its unsatisfiable gear constraints do not pass on
+CAR_DRIVE_FORCE = 1.40
+CAR_STEER_GAIN = 0.1  # pybullet's default positionGain: 10% of the error per sub-step
+CAR_STEER_INERTIA = 0.0049  # a steering hinge with its wheel about the hinge (kg m^2)
+CAR_SERVO_STEPS = 10.0  # servo stiffness kv = 10 I / dt, as the Drone's rotors
 ROTOR_DAMPING_STEPS = 10.0  # D = 10 I / dt (see the module docstring)
 
 
@@ -89,7 +115,7 @@ def _ball(task) -> tuple:
     body = (f'<body name="robot" pos="0 0 {b["radius"]!r}"><freejoint name="root"/>'
             f'{_inertial(b)}<geom name="ball" type="sphere" size="{b["radius"]!r}" '
             f'contype="3" conaffinity="0" condim="6" friction="0 0 0"/></body>')
-    return body, "", b["friction"], b["rolling"]
+    return dict(body=body, friction=b["friction"], rolling=b["rolling"])
 
 
 def _ant(task) -> tuple:
@@ -113,7 +139,7 @@ def _ant(task) -> tuple:
             f'<geom name="torso" type="sphere" size="{t["radius"]!r}"/>{"".join(legs)}</body>')
     motors = "".join(f'<motor name="m_{j}" joint="{j}" gear="1"/>' for i in range(1, 5)
                      for j in (f"hip_{i}", f"ankle_{i}"))
-    return body, motors, ANT_FRICTION, 0.0
+    return dict(body=body, actuators=motors, friction=ANT_FRICTION)
 
 
 def _drone(task) -> tuple:
@@ -128,10 +154,68 @@ def _drone(task) -> tuple:
             f'<geom name="box" type="box" size="{_v(np.array(b["half_size"]))}"/>{rotors}'
             f'</body>')
     motors = "".join(f'<motor name="m_{i}" joint="rotor_{i}" gear="1"/>' for i in range(4))
-    return body, motors, DRONE_FRICTION, 0.0
+    return dict(body=body, actuators=motors, friction=DRONE_FRICTION)
 
 
-ROBOT_BODIES = {"Ball": _ball, "Ant": _ant, "Drone": _drone}
+def _car(task) -> dict:
+    """The racecar in its centre-of-mass frame (pybullet's base frame; the URDF's chassis frame
+    is 0.6 m behind it), x forward. Its drivetrain is idealised (see CAR_DRIVETRAIN)."""
+    w, c = CAR_WHEEL, CAR_CHASSIS
+    o = np.array([-0.6, 0.0, 0.0])  # the URDF chassis frame in the body frame
+    dt = task.time_step
+    wheel_inertial = lambda side: _inertial(  # noqa: E731
+        dict(mass=w["mass"], inertia=(w["inertia"][0], w["inertia"][2], w["inertia"][1])),
+        (0.0, side * w["half_width"], 0.0))
+    wheel_geom = lambda name, side, fric: (  # noqa: E731  a cylinder along y
+        f'<geom name="{name}" type="cylinder" size="{w["radius"]!r} {w["half_width"]!r}" '
+        f'pos="0 {side * w["half_width"]!r} 0" euler="90 0 0" friction="{fric!r} 0 0"/>')
+    rear = "".join(
+        f'<body name="rear_{n}" pos="{_v(o + (0, side * 0.3, 0))}">{wheel_inertial(side)}'
+        f'<joint name="rear_{n}" type="hinge" axis="0 1 0"/>'
+        f'{wheel_geom(f"rear_{n}", side, w["rear_friction"] * PLANE_FRICTION)}</body>'
+        for n, side in (("left", 1), ("right", -1)))
+    front = "".join(
+        f'<body name="steer_{n}" pos="{_v(o + (0.975, side * 0.3, 0))}">'
+        f'<inertial pos="0 0 0" mass="0.1" diaginertia="1e-6 1e-6 1e-6"/>'
+        f'<joint name="steer_{n}" type="hinge" axis="0 0 1" range="-1 1" limited="true"/>'
+        f'<body name="front_{n}">{wheel_inertial(side)}'
+        f'<joint name="front_{n}" type="hinge" axis="0 1 0"/>'
+        f'{wheel_geom(f"front_{n}", side, w["front_friction"] * PLANE_FRICTION)}</body></body>'
+        for n, side in (("left", 1), ("right", -1)))
+    welded = "".join(  # laser, camera (with its two massless links) and the differentials' parts
+        f'<body name="{n}" pos="{_v(o + p)}"><inertial pos="0 0 0" mass="{m!r}" '
+        f'diaginertia="{_v(i)}"/>{g}</body>' for n, p, m, i, g in (
+            ("laser", (0.795, 0, 0.225), 0.13, (0.00195,) * 3,
+             f'<geom type="box" size="0.15 0.15 0.15" friction="{0.4!r} 0 0"/>'),
+            ("camera", (1.17, 0, 0.12), 0.1, (0.002364375, 0.000149175, 0.00237855),
+             f'<geom type="box" size="0.0495 0.2625 0.045" friction="{0.4!r} 0 0"/>'),
+            ("camera_l", (1.17, 0.18, 0.12), 0.01, (1e-6,) * 3, ""),
+            ("camera_r", (1.17, -0.18, 0.12), 0.01, (1e-6,) * 3, ""),
+            ("rear_differential", (0, 0, 0), 0.0637 + 4 * 0.056, (1e-6,) * 3, ""),
+            ("front_differential", (0.96, 0, 0), 0.0637 + 4 * 0.056, (1e-6,) * 3, "")))
+    body = (f'<body name="robot" pos="0 0 0.2"><freejoint name="root"/>{_inertial(c)}'
+            f'<geom name="chassis" type="mesh" mesh="chassis" pos="{_v(o)}" '
+            f'friction="{c["friction"] * PLANE_FRICTION!r} 0 0"/>{welded}{rear}{front}</body>')
+    # the drives: a force on each axle's mean wheel speed (an open differential), set once per
+    # control step by a clamped velocity servo in mujoco_env.py (MJX's implicit integration
+    # would damp a clamped velocity actuator as if unclamped: 11x slower spin-up than C MuJoCo)
+    steer_kv = CAR_SERVO_STEPS * CAR_STEER_INERTIA / dt
+    rate = CAR_STEER_GAIN / dt
+    actuators = "".join(f'<motor name="drive_{a}" tendon="{a}" gear="1"/>' for a in ("rear", "front"))
+    actuators += "".join(
+        f'<general name="steer_{n}" joint="steer_{n}" gainprm="{steer_kv * rate!r}" '
+        f'biastype="affine" biasprm="0 {-steer_kv * rate!r} {-steer_kv!r}"/>'
+        for n in ("left", "right"))
+    tendons = "".join(
+        f'<fixed name="{a}"><joint joint="{a}_left" coef="0.5"/>'
+        f'<joint joint="{a}_right" coef="0.5"/></fixed>' for a in ("rear", "front"))
+    return dict(body=body, actuators=actuators, tendons=tendons, friction=None,
+                integrator="implicitfast",
+                assets=f'<mesh name="chassis" file="{ASSETS / "meshes" / "chassis_differential.STL"}" '
+                       f'scale="3 3 3"/>')
+
+
+ROBOT_BODIES = {"Ball": _ball, "Ant": _ant, "Drone": _drone, "Car": _car}
 
 
 def has_model(robot_name: str) -> bool:
@@ -145,7 +229,10 @@ def model_xml(task) -> str:
     if robot not in ROBOT_BODIES:
         raise ValueError(f"no MuJoCo model of the {robot} (the models exist for "
                          f"{', '.join(ROBOT_BODIES)})")
-    body, actuators, friction, rolling = ROBOT_BODIES[robot](task)
+    r = ROBOT_BODIES[robot](task)
+    # the world carries the robot's combined friction, or none where the robot's geoms carry
+    # their own (the Car: wheels, chassis and payload differ)
+    friction, rolling = r["friction"] or 0.0, r.get("rolling", 0.0)
     ground = (f'<geom name="floor" type="plane" size="250 250 0.1" contype="0" conaffinity="1" '
               f'condim="{6 if rolling else 3}" '
               f'friction="{friction * PLANE_FRICTION!r} {rolling * PLANE_FRICTION!r} '
@@ -158,10 +245,13 @@ def model_xml(task) -> str:
                       f'euler="0 0 {float(np.degrees(yaw))!r}" contype="0" conaffinity="2" '
                       f'friction="{friction * WALL_FRICTION!r} 0 0"/>')
     return (f'<mujoco model="{task.name}"><compiler angle="degree" autolimits="true"/>'
-            f'<option timestep="{task.time_step!r}" gravity="0 0 -9.81" integrator="Euler"/>'
+            f'<option timestep="{task.time_step!r}" gravity="0 0 -9.81" '
+            f'integrator="{r.get("integrator", "Euler")}"/>'
             f'<default><geom contype="3" conaffinity="0" friction="0 0 0" margin="0"/></default>'
-            f'<worldbody>{ground}{walls}{body}</worldbody>'
-            f'<actuator>{actuators}</actuator></mujoco>')
+            f'<asset>{r.get("assets", "")}</asset>'
+            f'<worldbody>{ground}{walls}{r["body"]}</worldbody>'
+            f'<tendon>{r.get("tendons", "")}</tendon>'
+            f'<actuator>{r.get("actuators", "")}</actuator></mujoco>')
 
 
 def load_model(task):

@@ -1,13 +1,13 @@
 """The Bullet tasks on MuJoCo: `--physics mjx` (pure JAX, for large vectorised evaluation on an
 accelerator) and `--physics mujoco` (C MuJoCo in batch on the CPU, the same model), for the
-robots with a model in `mjcf.py` (Ball, Ant, Drone; not the Car yet).
+robots' models in `mjcf.py`.
 
 `BulletMjTask` adapts a `tasks.BulletTask` to the MuJoCo task protocol (`physics.MjTask`): it
 turns MuJoCo's state into the view the shared rules read (position, (x, y, z, w) quaternion,
 world-frame velocities, the Ant's joints and foot contacts, the Drone's Euler angles, rotor
 speeds and ground contacts) and the action into MuJoCo's inputs (the Ball's world-frame push,
-the Ant's torques, the Drone's rotor motors and propeller thrust, Bullet's velocity damping of
-the base and rotors). So observation, reward, cost and termination are the very functions the bullet
+the Ant's torques, the Drone's rotor motors and propeller thrust, the Car's drives and steering
+servos, Bullet's velocity damping of the base and rotors). So observation, reward, cost and termination are the very functions the bullet
 backend runs; only the physics differs, and that gap is measured (benchmarks/FIDELITY.md,
 `benchmarks/fidelity_bullet/mujoco_gap.py`).
 
@@ -104,6 +104,18 @@ class BulletMjTask(MjTask):
             self.rotor_inertia = np.array(m.body_inertia[self.rotor_bodies[0]])
         else:
             self.touch = []
+        if name == "Car":
+            joint = lambda n: m.jnt_qposadr[mujoco.mj_name2id(  # noqa: E731
+                m, mujoco.mjtObj.mjOBJ_JOINT, n)]
+            self.steer_q = [int(joint("steer_left")), int(joint("steer_right"))]
+            dof = lambda n: m.jnt_dofadr[mujoco.mj_name2id(  # noqa: E731
+                m, mujoco.mjtObj.mjOBJ_JOINT, n)]
+            self.wheel_v = [int(dof(n)) for n in ("rear_left", "rear_right", "front_left",
+                                                   "front_right")]
+            # the servo's gain: the axle's wheels (2 I on their mean speed) to the target in one
+            # control step
+            self.drive_kv = (2 * mjcf.CAR_WHEEL["inertia"][2]
+                             / (task.time_step * task.frame_skip))
         self.geom_size = np.array(m.geom_size)
         self.view_fields = ("qpos", "qvel") + (("geom_xpos", "geom_xmat") if self.touch else ())
 
@@ -119,9 +131,19 @@ class BulletMjTask(MjTask):
         else:
             yaw = jnp.asarray(self.robot.init_yaw)
         quat = jnp.stack([jnp.cos(0.5 * yaw), 0.0, 0.0, jnp.sin(0.5 * yaw)])  # w, x, y, z
-        qpos = jnp.concatenate([pos, quat, pose["joints"]]).astype(jnp.float32)
+        qpos = jnp.concatenate([pos, quat, self.joints_from_bullet(pose["joints"])]).astype(
+            jnp.float32)
         qvel = jnp.zeros((self._model.nv,), jnp.float32)
         return qpos, qvel, dict(extras, settle=jnp.array(True))
+
+    def joints_from_bullet(self, q):
+        """The model's joint coordinates [nq - 7] from the original's motor joints
+        [n_joints] (positions or velocities). The Car's 14 (steering hinges, front wheels,
+        the two differentials' rings, spiders and sides) become its 6 hinges: steering and
+        front wheels as they are, a rear wheel turning with its ring plus its side gear."""
+        if self.robot.name != "Car":
+            return q
+        return jnp.stack([q[4] + q[7], q[4] + q[8], q[0], q[1], q[2], q[3]])
 
     # -- views ------------------------------------------------------------------------------
     def bullet_view(self, v: dict, before: dict = None) -> dict:
@@ -179,6 +201,17 @@ class BulletMjTask(MjTask):
             xfrc = xfrc.at[self.root, :3].add(push)
         elif name == "Ant":
             ctrl = self.robot.torque * a
+        elif name == "Car":
+            r = self.robot
+            steer = before["qpos"][jnp.array(self.steer_q)]
+            # per axle: the mean wheel speed driven toward 40 a, within the fitted force limit
+            wheels = before["qvel"][jnp.array(self.wheel_v)].reshape(2, 2).mean(axis=1)
+            drive = jnp.clip(self.drive_kv * (r.speed_multiplier * a[0] - wheels),
+                             -mjcf.CAR_DRIVE_FORCE, mjcf.CAR_DRIVE_FORCE)
+            ctrl = jnp.concatenate([drive, jnp.full(2, r.steering_multiplier * a[1])])
+            # the reset's step: the original's motors are off; the steering servo holds still
+            settle = jnp.concatenate([jnp.zeros(2), steer])
+            ctrl = jnp.where(extras["settle"], settle, ctrl)
         elif name == "Drone":
             r = self.robot
             target = jnp.asarray(r.hover) * (1.0 + r.action_range * a)
@@ -195,7 +228,9 @@ class BulletMjTask(MjTask):
                 xfrc = xfrc.at[bid, :3].add(thrust[i] * axis)
                 xfrc = xfrc.at[bid, 3:].add(-rotor_i @ w * DAMPING * (1 + jnp.linalg.norm(w)))
         keep = ~extras["settle"]  # the reset's step runs without inputs
-        return {"ctrl": jnp.where(keep, ctrl, 0.0), "xfrc_applied": jnp.where(keep, xfrc, 0.0)}
+        if name != "Car":
+            ctrl = jnp.where(keep, ctrl, 0.0)
+        return {"ctrl": ctrl, "xfrc_applied": jnp.where(keep, xfrc, 0.0)}
 
 
 def _thrust(r, speed, v0):
@@ -228,10 +263,9 @@ class BulletMujocoEnv(MujocoEnv):
 
 
 def make(task: BulletTask, physics: str):
-    """`physics` "mjx" or "mujoco" for a robot with a model (mjcf.has_model)."""
-    if not mjcf.has_model(task.robot.name):
+    """`physics` "mjx" or "mujoco"."""
+    if not mjcf.has_model(task.robot.name):  # pragma: no cover - every robot has one
         raise BackendUnavailableError(
-            f"{task.name}: the {task.robot.name} has no MuJoCo model in this version of r2pac_jax "
-            f"(models exist for {', '.join(mjcf.ROBOT_BODIES)}): use --physics bullet")
+            f"{task.name}: the {task.robot.name} has no MuJoCo model: use --physics bullet")
     env_cls = BulletMjxEnv if physics == "mjx" else BulletMujocoEnv
     return env_cls(BulletMjTask(task))
