@@ -119,12 +119,8 @@ def _serves(task, backend) -> bool:
     """Whether `backend` simulates `task` (pure JAX: the demo; bullet: the Bullet tasks)."""
     if task.family == "demo":
         return backend == "jax"
-    if task.family == "bullet":  # pybullet; MuJoCo re-creations of the Ball, Ant and Drone
-        from r2pac_jax.envs.bullet import mjcf
-        from r2pac_jax.envs.bullet.tasks import BULLET_TASKS
-
-        return backend == "bullet" or (backend in ("mujoco", "mjx")
-                                       and mjcf.has_model(BULLET_TASKS[task.name][1]))
+    if task.family == "bullet":  # pybullet, or the MuJoCo re-creations
+        return backend in ("bullet", "mujoco", "mjx")
     return backend in ("mujoco", "mjx")
 
 

@@ -155,7 +155,26 @@ class LaneEvaluator:
         else:
             pol = _as_memory_policy(policy_fn)
             self._policy_lanes = MemoryPolicy(*(jax.jit(jax.vmap(f)) for f in pol))
-            self._run = lambda p, k: _rollout_python(self._policy_lanes, p, self.env, k, episodes)
+            self._run = self._run_python
+
+    def _run_python(self, lane_params, keys):
+        """Lanes in groups small enough for an env with a cap on parallel episodes (pybullet:
+        one client, ~29 MiB, per episode); each lane's episodes depend on its key only, so the
+        grouping changes no result."""
+        L, E = keys.shape[0], self.episodes
+        cap = getattr(self.env, "max_parallel", None)
+        group = L if cap is None else cap // E
+        if group < 1:
+            raise MemoryError(f"{E} evaluation episodes at once exceed this env's limit of "
+                              f"{cap} parallel episodes: evaluate fewer episodes, or raise "
+                              "R2PAC_BULLET_MAX_CLIENTS if the memory is there")
+        parts = []
+        for lo in range(0, L, group):
+            sl = slice(lo, min(L, lo + group))
+            parts.append(_rollout_python(
+                self._policy_lanes, jax.tree_util.tree_map(lambda x: x[sl], lane_params),
+                self.env, keys[sl], E))
+        return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
     def __call__(self, lane_params, keys: jax.Array) -> dict:
         out = {k: np.asarray(v) for k, v in self._run(lane_params, keys).items()}

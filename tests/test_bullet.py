@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -257,9 +258,8 @@ def test_bad_input():
         env.step_batch(st, np.zeros((2, 3), np.float32))
     with pytest.raises(ValueError, match="NaN"):
         env.step_batch(st, np.full((2, 2), np.nan, np.float32))
-    for physics in ("mujoco", "mjx"):
-        with pytest.raises(BackendUnavailableError, match="bullet"):
-            get_task("BallRun").make_env(physics=physics)
+    with pytest.raises(BackendUnavailableError, match="auto, bullet, mjx or mujoco"):
+        get_task("BallRun").make_env(physics="jax")
     with pytest.raises(ValueError, match="not a Bullet-Safety-Gym task"):
         from r2pac_jax.envs.bullet.tasks import make_task
 
@@ -284,6 +284,33 @@ def test_too_many_clients_is_refused_and_envs_free_theirs(monkeypatch):
     del env, st
     gc.collect()
     assert not any(pb.getConnectionInfo(c)["isConnected"] for c in cids)
+
+
+def test_evaluation_groups_lanes_under_the_client_limit(monkeypatch):
+    """More lanes x episodes than the process may hold clients for: the evaluator runs the
+    lanes in groups, with the same scores as all at once."""
+    from r2pac_jax.envs.bullet import engine
+    from r2pac_jax.evaluate import LaneEvaluator
+
+    task = get_task("BallRun")
+
+    def act(params, obs, key):  # a fixed linear policy per lane
+        return jnp.tanh(obs[:, :2] * params["w"])
+
+    params = {"w": jnp.array([0.5, -1.0, 2.0])}
+    keys = jax.random.split(jax.random.PRNGKey(4), 3)
+    env = make_env(task)
+    free = LaneEvaluator(act, task, episodes=2, env=env)(params, keys)
+    env.close()
+    monkeypatch.setenv("R2PAC_BULLET_MAX_CLIENTS", str(engine._LIVE[0] + 4))
+    grouped_env = make_env(task)
+    assert grouped_env.max_parallel == 4  # 3 lanes x 2 episodes = 6 > 4: groups of 2 lanes
+    grouped = LaneEvaluator(act, task, episodes=2, env=grouped_env)(params, keys)
+    for k in ("returns", "costs", "lengths"):
+        np.testing.assert_array_equal(free[k], grouped[k])
+    assert len(grouped_env._worlds) <= 4
+    with pytest.raises(MemoryError, match="evaluation episodes"):
+        LaneEvaluator(act, task, episodes=5, env=grouped_env)(params, keys)
 
 
 def test_a_dsrl_file_of_the_wrong_width_is_refused(tmp_path):

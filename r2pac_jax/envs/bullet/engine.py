@@ -226,6 +226,12 @@ class BulletEnv:
         except Exception:
             pass
 
+    @property
+    def max_parallel(self) -> int:
+        """The most episodes this env can run at once: the process's client limit less the
+        clients other envs hold (the evaluator splits larger batches of lanes by it)."""
+        return max_clients() - (_LIVE[0] - len(self._worlds))
+
     # -- protocol ---------------------------------------------------------------------------
     @property
     def view_keys(self) -> tuple:
