@@ -17,6 +17,8 @@ Where MuJoCo has no equivalent of Bullet's model (each gap is measured in benchm
   left out. The robots roll or walk on the ground; bounces happen only on falls.
 - contact softness: Bullet's impulse solver with ERP 0.9 and 5 iterations against MuJoCo's soft
   constraints with their default solref (time constant 0.02 s, clamped to two steps).
+- the Circle world's 8 walls are the planes of their inner faces (equivalent inside the
+  octagon below the walls' 2 m top; see `model_xml`).
 - collisions: robot-plane and robot-wall only (no self-collision; the original enables it for
   the Ant, whose legs rarely meet). The Drone's rotor discs do not collide: MJX (mujoco 4.0.0)
   has no box-cylinder test, and its plane-cylinder test reported a 9.5 cm penetration for a
@@ -238,12 +240,18 @@ def model_xml(task) -> str:
               f'friction="{friction * PLANE_FRICTION!r} {rolling * PLANE_FRICTION!r} '
               f'{rolling * PLANE_FRICTION!r}"/>')
     walls = ""
-    if task.world == "octagon":  # 8 boxes 0.2 x 10 x 2 m centred 12 m out, every 45 degrees
+    if task.world == "octagon":
+        # the original's 8 boxes (0.2 x 10 x 2 m, centred 12 m out every 45 degrees) overlap at
+        # the corners (the octagon's side is 9.86 m), so inside them they act as the 8 planes of
+        # their inner faces, 11.9 m out; planes are MJX's cheap contacts (boxes cost a convex
+        # test per robot geom and wall: BallCircle's MJX protocol ran at 163 env steps/s on a
+        # CPU with boxes, benchmarks/RESULTS.md). Above the walls' 2 m top
+        # the planes still stop a robot the boxes would not (none of the robots climbs so high)
         for k, yaw in enumerate(np.linspace(0, 7 / 8 * 2 * np.pi, num=8)):
             c, s = np.cos(yaw), np.sin(yaw)
-            walls += (f'<geom name="wall_{k}" type="box" size="0.1 5 1" pos="{_v((12 * c, 12 * s, 1))}" '
-                      f'euler="0 0 {float(np.degrees(yaw))!r}" contype="0" conaffinity="2" '
-                      f'friction="{friction * WALL_FRICTION!r} 0 0"/>')
+            walls += (f'<geom name="wall_{k}" type="plane" size="5 1 0.1" '
+                      f'pos="{_v((11.9 * c, 11.9 * s, 1))}" zaxis="{_v((-c, -s, 0))}" '
+                      f'contype="0" conaffinity="2" friction="{friction * WALL_FRICTION!r} 0 0"/>')
     return (f'<mujoco model="{task.name}"><compiler angle="degree" autolimits="true"/>'
             f'<option timestep="{task.time_step!r}" gravity="0 0 -9.81" '
             f'integrator="{r.get("integrator", "Euler")}"/>'
