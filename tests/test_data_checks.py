@@ -80,3 +80,20 @@ def test_imitability_trains_the_three_cloners(tmp_path, reach_avoid_data):
     d = res["coverage"]["mean_normalised_cost"]
     assert flags["bc-all-mlp_cost_matches_data"] == (abs(c - d) <= 0.25 * d)
     assert res["passed"] == (not res["failed"])
+
+
+def test_a_file_without_safe_episodes_fails_the_safe_cloners_by_name(tmp_path):
+    """No episode within kappa (a learner that never met the limit): the checks file is still
+    written, the safe cloners are not trained and their checks fail with the reason."""
+    path = tmp_path / "unsafe.hdf5"
+    write_dsrl(path, _episodes([10.0, 20.0, 30.0, 39.0], [3, 5, 6, 9]),
+               attrs={"task": "ReachAvoid"})  # kappa 2: none safe
+    tiny = dict(steps=10, batch_size=32, hidden_dims=(16,), threshold_every=10, eval_every=10,
+                checkpoint_every=10, eval_episodes=2)
+    res = checks.check_file(path, seeds=(100,), overrides=tiny, log=lambda m: None)
+    imi = res["imitability"]
+    assert imi["bc-safe"] == imi["bc-safe-mlp"] == {"skipped": "no episode with cost <= kappa = 2"}
+    assert {"safe_share", "bc-safe_safe", "bc-safe_return", "bc-safe-mlp_safe",
+            "bc-safe-mlp_return"} <= set(res["failed"])
+    assert "normalized_cost" in imi["bc-all-mlp"]  # the all-data cloner still trains
+    assert json.loads(checks.checks_path(path).read_text())["failed"] == res["failed"]

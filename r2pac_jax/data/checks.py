@@ -88,6 +88,12 @@ def imitability(task: TaskSpec, path, cov: dict, seeds: Sequence[int], out_dir,
     for algo in IMITATORS:
         from r2pac_jax.config import field_types
 
+        if algo.startswith("bc-safe") and cov["safe_share"] == 0:
+            # nothing to clone: the safe cloners fail their checks, with the reason recorded
+            out[algo] = dict(skipped=f"no episode with cost <= kappa = {task.kappa:g}")
+            log(f"{algo}: skipped, the file has no episode with cost <= kappa")
+            continue
+
         keys = field_types(algo)
         over = {k: v for k, v in (overrides or {}).items() if k in keys}
         cfg = make_config(task, algo, preset, dict(over, seeds=len(seeds)))
@@ -103,6 +109,9 @@ def imitability(task: TaskSpec, path, cov: dict, seeds: Sequence[int], out_dir,
     flags = {}
     for algo in ("bc-safe", "bc-safe-mlp"):
         r = out[algo]
+        if "skipped" in r:
+            flags[f"{algo}_safe"] = flags[f"{algo}_return"] = False
+            continue
         flags[f"{algo}_safe"] = r["normalized_cost"]["mean"] < 1.0
         flags[f"{algo}_return"] = (target is not None
                                    and r["normalized_reward"]["mean"] >= 0.8 * target)
@@ -117,9 +126,9 @@ def imitability(task: TaskSpec, path, cov: dict, seeds: Sequence[int], out_dir,
 def check_file(path, task_name: Optional[str] = None, fast: bool = False,
                seeds: Sequence[int] = DEFAULT_SEEDS, work_dir=None,
                log: Callable[[str], None] = print, overrides: Optional[dict] = None) -> dict:
-    """`overrides`: config values for the cloners (tests use tiny ones; the bar is the quick
-    preset)."""
-    """Run the checks on a file; write and return `{file}.checks.json`."""
+    """Run the checks on a file; write and return `{file}.checks.json`. `overrides`: config
+    values for the cloners (tests use tiny ones; the bar is the quick preset). A file with no
+    safe episode fails the safe cloners' checks without training them."""
     from r2pac_jax.io import atomic_write_json
 
     path = Path(path).expanduser()
