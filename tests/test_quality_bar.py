@@ -106,3 +106,28 @@ def test_v2_report_has_the_mlp_cloners_and_a_second_verdict(qb, tmp_path):
     assert "bc-safe-mlp reward" in text and "bc-all-mlp reward" in text
     assert "| CarGoal1 | pass | fail: r2pac reward <= bc-safe-mlp |" in text
     assert qb.learned_file("BallRun") is None
+
+
+def test_safe_cloners_on_data_without_a_safe_episode_are_skipped_and_named(qb, tmp_path):
+    """A file whose card counts no safe trajectory: run_one records the safe cloners as
+    skipped (no training), the table says why, and the verdict fails naming it."""
+    card = tmp_path / "SwimmerVelocity-generated-ppolag-v2-s0-n3.json"
+    card.write_text(json.dumps({"safe_trajectories": 0}))
+    data = card.with_suffix(".hdf5")
+    out = tmp_path / "out"
+    (out / "data.json").parent.mkdir(parents=True)
+    (out / "data.json").write_text(json.dumps({"data": "v2"}))
+    for algo in ("bc-safe", "bc-safe-mlp"):  # would raise if it tried to train (no file)
+        qb.run_one("SwimmerVelocity", algo, out, 3, 20_000, dataset=data)
+        rec = json.loads((out / "SwimmerVelocity" / algo / "skipped.json").read_text())
+        assert rec["skipped"] == "the data hold no episode with cost <= kappa"
+    assert qb._untrainable("bc-all-mlp", data) is None and qb._untrainable("r2pac", data) is None
+    for algo, r, c in [("r2pac", 0.1, 3.0), ("bc-all", 0.2, 4.0), ("bc-all-mlp", 0.2, 5.0)]:
+        d = out / "SwimmerVelocity" / algo
+        d.mkdir(parents=True)
+        (d / "results.json").write_text(json.dumps(_res(r, c)))
+    text = qb.report(out)
+    assert "SwimmerVelocity: no bc-safe, bc-safe-mlp (the data hold no episode" in text
+    assert ("| SwimmerVelocity | fail: no bc-safe (the data hold no episode with cost <= kappa) "
+            "| fail: no bc-safe-mlp") in text
+    assert "skipped: the data hold no episode" in qb.details(out, "SwimmerVelocity")

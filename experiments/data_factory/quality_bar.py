@@ -60,7 +60,14 @@ def run_one(task: str, algo: str, out: Path, seeds: int, eval_every: int,
     from r2pac_jax.tasks import get_task
 
     run_dir = out / task / algo
-    if (run_dir / "results.json").exists():
+    if (run_dir / "results.json").exists() or (run_dir / "skipped.json").exists():
+        return
+    reason = _untrainable(algo, dataset)
+    if reason:  # recorded, so the table says why the cell is empty
+        from r2pac_jax.io import atomic_write_json
+
+        atomic_write_json(run_dir / "skipped.json", {"skipped": reason, "dataset": str(dataset)})
+        print(f"{task} {algo}: skipped, {reason}", flush=True)
         return
     if get_task(task).family == "demo":  # pure JAX: no physics backend to choose
         physics = "auto"
@@ -76,6 +83,19 @@ def run_one(task: str, algo: str, out: Path, seeds: int, eval_every: int,
     subprocess.run(cmd, check=True)
 
 
+def _untrainable(algo: str, dataset) -> str | None:
+    """Why `algo` cannot train on `dataset` (a safe cloner on a file without a safe episode,
+    by the file's card), or None."""
+    from r2pac_jax.data import factory
+
+    if dataset is None or "safe" not in algo:
+        return None
+    card = factory.card_path(Path(dataset))
+    if card.exists() and json.loads(card.read_text()).get("safe_trajectories") == 0:
+        return "the data hold no episode with cost <= kappa"
+    return None
+
+
 def _algos(out: Path) -> tuple:
     """The agents of a results folder: v2 folders (marked by data.json) have the MLP cloners."""
     marker = out / "data.json"
@@ -89,6 +109,8 @@ def verdict(row: dict, against: str = "bc-safe") -> str:
     if not all(a in row for a in ("r2pac", against)):
         return "incomplete"
     r, b = row["r2pac"], row[against]
+    if "skipped" in r or "skipped" in b:
+        return f"fail: no {against} ({(r if 'skipped' in r else b)['skipped']})"
     problems = []
     if r["normalized_cost"]["mean"] >= 1.0:
         problems.append("r2pac unsafe")
@@ -99,7 +121,8 @@ def verdict(row: dict, against: str = "bc-safe") -> str:
 
 def _result_file(out: Path, task: str, algo: str) -> Path | None:
     """A run's results: a run directory's `results.json`, or an archived `ALGO.json`."""
-    for f in (out / task / algo / "results.json", out / task / f"{algo}.json"):
+    for f in (out / task / algo / "results.json", out / task / algo / "skipped.json",
+              out / task / f"{algo}.json"):
         if f.exists():
             return f
     return None
@@ -125,6 +148,7 @@ def archive(out: Path, task: str, dest: Path) -> list[Path]:
         if f.resolve() != target.resolve():
             written.append(copy(f, target))
     dataset = Path(json.loads(files["r2pac"].read_text()).get("dataset", ""))
+    # (a skipped cell's record is archived as ALGO.json too: {"skipped": reason})
     for side in (dataset.with_suffix(".json"), dataset.with_suffix(".png")):
         if side.is_file():
             written.append(copy(side, dest / task / side.name))
@@ -143,6 +167,9 @@ def details(out: Path, task: str) -> str:
         if f is None:
             continue
         r = json.loads(f.read_text())
+        if "skipped" in r:
+            lines.append(f"| {algo} | skipped: {r['skipped']} | | | | | |")
+            continue
         nr, nc = r["normalized_reward"], r["normalized_cost"]
         zero = float(np.mean(np.asarray(r["costs"]) == 0)) if "costs" in r else float("nan")
         lines.append(
@@ -173,7 +200,15 @@ def report(out: Path) -> str:
             cells[task] = row
     if not cells:
         return "no finished run yet"
+    skipped = {t: {a: r.pop(a)["skipped"] for a in list(r) if "skipped" in r[a]}
+               for t, r in cells.items()}
     lines = [results_table(cells, list(algos)), ""]
+    lines += [f"{t}: no {', '.join(s)} ({next(iter(s.values()))})." for t, s in skipped.items()
+              if s]
+    if any(skipped.values()):
+        lines.append("")
+    for t, s in skipped.items():  # back in the rows, so the verdicts can name them
+        cells[t].update({a: {"skipped": why} for a, why in s.items()})
     if "bc-safe-mlp" in algos:
         lines += ["| Task | verdict | r2pac against bc-safe-mlp (reported) |", "|---|---|---|"]
         lines += [f"| {t} | {verdict(r)} | {verdict(r, 'bc-safe-mlp')} |"
