@@ -1,6 +1,7 @@
-"""The one fitted number of the MuJoCo Car (envs/bullet/mjcf.py, CAR_DRIVE_FORCE): the force limit
-of its idealised axle drives, chosen so that the car's straight-line speed after 1 s of full
-throttle from rest matches the original's.
+"""The two fitted numbers of the MuJoCo Car (envs/bullet/mjcf.py): its idealised axle drives' top
+wheel speed (CAR_SPEED_SCALE x the original's 40 a rad/s target) and force limit
+(CAR_DRIVE_FORCE), read off one full-throttle run of the original from rest: the speed it
+settles at (after 200 steps) and the speed it has after 1 s (30 steps).
 
     python benchmarks/fidelity_bullet/car_drive_fit.py [--task CarRun]
 
@@ -11,10 +12,11 @@ rad/s where the constraints ask for opposite speeds, and the front ring overruns
 48 rad/s for 40), so the torque reaching the wheels is far below the motors' 20 N m (the car
 gains 3.4 m/s^2 from rest, not the ~11 m/s^2 that 20 N m per axle gives in MuJoCo). MuJoCo
 has no model of that solver's compromise; the re-creation drives each axle's mean wheel speed
-(an open differential) with the original's target speed and this fitted force limit. Every
-other figure of the gap (FIDELITY.md) is measured with it, not fitted.
+(an open differential) toward the fitted fraction of the original's target speed (the original
+settles at 3.55 m/s, 24 rad/s at the wheels, where the motors aim at 40) within the fitted force
+limit. Every other figure of the gap (FIDELITY.md) is measured with them, not fitted.
 
-Prints the original's speed at 1 s, the bisection's steps and the fitted force (N m per axle).
+Prints the original's speeds, the bisection's steps and the fitted numbers.
 """
 from __future__ import annotations
 
@@ -31,6 +33,7 @@ from r2pac_jax.envs.bullet import make_env, mjcf  # noqa: E402
 from r2pac_jax.tasks import get_task  # noqa: E402
 
 STEPS = 30  # 1 s of CarRun (4 x 1/120 s per control step)
+SETTLED = 200  # a whole CarRun episode: the speed has settled (3.55 m/s from step 150 on)
 
 
 def speed_after(env, steps: int = STEPS) -> float:
@@ -46,6 +49,10 @@ def main():
     p.add_argument("--iters", type=int, default=14)
     args = p.parse_args()
     spec = get_task(args.task)
+    settled = speed_after(make_env(spec, "bullet"), SETTLED)
+    scale = settled / (40.0 * mjcf.CAR_WHEEL["radius"])
+    print(f"original: {settled:.4f} m/s after {SETTLED} steps: CAR_SPEED_SCALE = {scale:.3f}")
+    mjcf.CAR_SPEED_SCALE = scale
     target = speed_after(make_env(spec, "bullet"))
     print(f"original: {target:.4f} m/s after {STEPS} steps of full throttle")
     lo, hi = 0.1, 20.0
@@ -55,7 +62,9 @@ def main():
         v = speed_after(make_env(spec, "mujoco"))
         print(f"  force {mid:.4f} N m per axle: {v:.4f} m/s")
         lo, hi = (mid, hi) if v < target else (lo, mid)
-    print(f"fitted CAR_DRIVE_FORCE = {0.5 * (lo + hi):.3f}")
+    mjcf.CAR_DRIVE_FORCE = 0.5 * (lo + hi)
+    print(f"fitted CAR_DRIVE_FORCE = {mjcf.CAR_DRIVE_FORCE:.3f}; the model then settles at "
+          f"{speed_after(make_env(spec, 'mujoco'), SETTLED):.4f} m/s")
 
 
 if __name__ == "__main__":

@@ -30,10 +30,10 @@ Where MuJoCo has no equivalent of Bullet's model (each gap is measured in benchm
   base and to the Drone's rotors, where it matters: a rotor at hover speed (461 rad/s) is braked
   by 2.3 N m, which its motor answers, and the difference between rotors at different speeds
   yaws the drone. The Ant's legs go undamped.
-- the Car's drivetrain (CAR_DRIVE_FORCE, car_drive_fit.py): each axle's two wheels are driven
-  as an open differential (a velocity servo on their mean speed, target 40 a rad/s) with a
-  force limit fitted to the original's straight-line acceleration, the one fitted number of
-  these models; the original's eight gear constraints (rings, spiders, side gears) have no
+- the Car's drivetrain (CAR_SPEED_SCALE, CAR_DRIVE_FORCE, car_drive_fit.py): each axle's two
+  wheels are driven as an open differential (a velocity servo on their mean speed) toward a
+  top speed and within a force limit read off the original's full-throttle run, the two fitted
+  numbers of these models; the original's eight gear constraints (rings, spiders, side gears) have no
   MuJoCo equivalent that reproduces what pybullet makes of them (they are not satisfiable
   together, and its solver's compromise passes on a fraction of the motors' 20 N m). Its
   steering servos follow pybullet's position control (10% of the error per sub-step, by a
@@ -93,9 +93,12 @@ CAR_CHASSIS = dict(mass=4.0, inertia=(0.13394400657767078, 0.508479024071038, 0.
 CAR_WHEEL = dict(mass=0.34055, inertia=(0.0032215177336392866, 0.0032215177336392866,
                                         0.00531462308741507),
                  radius=0.15, half_width=0.0675, front_friction=1.1, rear_friction=0.7)
-# the force limit of each axle's drive (N m on the mean wheel speed): fitted to the original's
-# speed after 1 s of full throttle (benchmarks/fidelity_bullet/car_drive_fit.py: 1.401); the
-# original's motors have 20, which its unsatisfiable gear constraints do not pass on
+# the axle drives' two fitted numbers (benchmarks/fidelity_bullet/car_drive_fit.py), read off one
+# full-throttle run of the original from rest: the top wheel speed as a fraction of the motors'
+# 40 a rad/s target (the original settles at 3.55 m/s, 24 rad/s), and the force limit (N m on
+# the mean wheel speed) that gives its speed after 1 s; its motors have 20, which its
+# unsatisfiable gear constraints do not pass on
+CAR_SPEED_SCALE = 0.59
 CAR_DRIVE_FORCE = 1.40
 CAR_STEER_GAIN = 0.1  # pybullet's default positionGain: 10% of the error per sub-step
 CAR_STEER_INERTIA = 0.0049  # a steering hinge with its wheel about the hinge (kg m^2)

@@ -204,9 +204,11 @@ class BulletMjTask(MjTask):
         elif name == "Car":
             r = self.robot
             steer = before["qpos"][jnp.array(self.steer_q)]
-            # per axle: the mean wheel speed driven toward 40 a, within the fitted force limit
+            # per axle: the mean wheel speed driven toward the fitted share of 40 a, within the
+            # fitted force limit
             wheels = before["qvel"][jnp.array(self.wheel_v)].reshape(2, 2).mean(axis=1)
-            drive = jnp.clip(self.drive_kv * (r.speed_multiplier * a[0] - wheels),
+            target = mjcf.CAR_SPEED_SCALE * r.speed_multiplier * a[0]
+            drive = jnp.clip(self.drive_kv * (target - wheels),
                              -mjcf.CAR_DRIVE_FORCE, mjcf.CAR_DRIVE_FORCE)
             ctrl = jnp.concatenate([drive, jnp.full(2, r.steering_multiplier * a[1])])
             # the reset's step: the original's motors are off; the steering servo holds still
