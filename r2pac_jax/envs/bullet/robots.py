@@ -342,7 +342,9 @@ class Drone(Robot):
         R = np.array(pb.getMatrixFromQuaternion(quat)).reshape((3, 3))
         # float32 multiplier times the float64 hover speeds, as numpy 1.x computes them
         target = self.hover * (np.float32(1) + np.float32(self.action_range) * a)
-        v0 = np.array(vel).dot(R.dot(np.array([0.0, 0.0, 1.0])))
+        # the climb rate vel . R e_z, summed left to right in plain float64 (numpy's dot may
+        # take an AVX-512 path whose rounding differs from the original's recordings)
+        v0 = vel[0] * R[0, 2] + vel[1] * R[1, 2] + vel[2] * R[2, 2]
         for j, d, v in zip(self.motors, self.directions, target):
             pb.setJointMotorControl2(body, j, pb.VELOCITY_CONTROL, targetVelocity=v,
                                      force=self.motor_force, physicsClientId=cid)
