@@ -7,10 +7,10 @@ settles at (after 200 steps) and the speed it has after 1 s (30 steps).
 
 Why a fit: the original drives each axle's differential ring with a velocity motor (40 a rad/s,
 force 20) and couples rings, spider and side gears with eight gear constraints that pybullet
-does not satisfy together (in a full-throttle run the rear side gears turn at -17.5 and -15.8
+does not satisfy together (after 1 s of full throttle the rear side gears turn at -13.3 and -6.3
 rad/s where the constraints ask for opposite speeds, and the front ring overruns its target:
-48 rad/s for 40), so the torque reaching the wheels is far below the motors' 20 N m (the car
-gains 3.4 m/s^2 from rest, not the ~11 m/s^2 that 20 N m per axle gives in MuJoCo). MuJoCo
+48 rad/s for 40), so the torque reaching the wheels is far below the motors' 20 N m (the fit
+below lands at 1.4 N m per axle). MuJoCo
 has no model of that solver's compromise; the re-creation drives each axle's mean wheel speed
 (an open differential) toward the fitted fraction of the original's target speed (the original
 settles at 3.55 m/s, 24 rad/s at the wheels, where the motors aim at 40) within the fitted force

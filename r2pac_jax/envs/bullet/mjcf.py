@@ -47,7 +47,7 @@ Where MuJoCo has no equivalent of Bullet's model (each gap is measured in benchm
   damping at the target speed), with D = 10 I / dt, integrated implicitly by MuJoCo's Euler
   step: 91% of the way in one sub-step. A stiffer D (100 I / dt) put so large an explicit
   acceleration before the implicit correction into the contact solve that a drone resting on
-  the ground with a yawing action was thrown up at 5.5 m/s; at 10 I / dt the one-step errors were
+  the ground with a yawing action was thrown off it; at 10 I / dt the one-step errors were
   smallest (3 I / dt and I / dt: larger). The force limit (23.4 N m) never binds after the first
   step (a 10% speed change needs 0.6% of it), so it is left out.
 """
@@ -203,7 +203,8 @@ def _car(task) -> dict:
             f'friction="{c["friction"] * PLANE_FRICTION!r} 0 0"/>{welded}{rear}{front}</body>')
     # the drives: a force on each axle's mean wheel speed (an open differential), set once per
     # control step by a clamped velocity servo in mujoco_env.py (MJX's implicit integration
-    # would damp a clamped velocity actuator as if unclamped: 11x slower spin-up than C MuJoCo)
+    # damped a clamped velocity actuator as if unclamped: the wheels spun up far slower than in C
+    # MuJoCo, test_bullet_mujoco's MJX = C MuJoCo check caught it)
     steer_kv = CAR_SERVO_STEPS * CAR_STEER_INERTIA / dt
     rate = CAR_STEER_GAIN / dt
     actuators = "".join(f'<motor name="drive_{a}" tendon="{a}" gear="1"/>' for a in ("rear", "front"))

@@ -94,7 +94,8 @@ class BulletTask:
         d = -np.asarray(pos, np.float64)
         d = d / np.linalg.norm(d)
         # math.atan2 (the C library's), not np.arctan2: numpy's AVX-512 build of arctan2
-        # differs from it in the last bit for ~7.5% of arguments (measured on an AVX-512 EPYC),
+        # differs from it in the last bit for 7.2% of random arguments on an AVX-512 EPYC
+        # (benchmarks/fidelity_bullet/diagnostics.py),
         # and the original's recordings were made where numpy used the C library; a last-bit
         # change of the heading grows to visible differences within an episode
         return float(math.atan2(d[1], d[0]) + np.pi / 2 + self.robot.init_yaw)
