@@ -27,6 +27,7 @@ import numpy as np
 from r2pac_jax.envs.base import BackendUnavailableError
 from r2pac_jax.envs.bullet import mjcf
 from r2pac_jax.envs.bullet.tasks import BulletTask
+from r2pac_jax.envs.navigation.agents import normalize_quat, quat2mat, rot2quat
 from r2pac_jax.envs.physics import MjTask, MjxEnv, MujocoEnv
 
 DAMPING = 0.04  # btMultiBody's linear and angular damping: m v k (1 + |v|)
@@ -38,12 +39,9 @@ CONTACT_DISTANCE = {"Ant": 0.01, "Drone": 1e-3}
 
 
 def quat_to_mat(q_wxyz: jax.Array) -> jax.Array:
-    """[4] (w, x, y, z) -> [3, 3] rotation matrix."""
-    w, x, y, z = q_wxyz / jnp.linalg.norm(q_wxyz)
-    return jnp.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    """[4] (w, x, y, z), not necessarily unit -> [3, 3] rotation matrix (MuJoCo's formulas, as
+    the navigation tasks use them)."""
+    return quat2mat(normalize_quat(q_wxyz))
 
 
 def euler_from_quat(q_xyzw: jax.Array) -> jax.Array:
@@ -130,7 +128,7 @@ class BulletMjTask(MjTask):
             yaw = jnp.arctan2(-pos[1], -pos[0]) + 0.5 * jnp.pi + self.robot.init_yaw
         else:
             yaw = jnp.asarray(self.robot.init_yaw)
-        quat = jnp.stack([jnp.cos(0.5 * yaw), 0.0, 0.0, jnp.sin(0.5 * yaw)])  # w, x, y, z
+        quat = rot2quat(yaw)  # w, x, y, z
         qpos = jnp.concatenate([pos, quat, self.joints_from_bullet(pose["joints"])]).astype(
             jnp.float32)
         qvel = jnp.zeros((self._model.nv,), jnp.float32)
