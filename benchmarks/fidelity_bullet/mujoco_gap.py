@@ -24,7 +24,6 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -47,7 +46,8 @@ def raw_states(env, state, mj_task) -> tuple:
         pos, quat = pb.getBasePositionAndOrientation(b, physicsClientId=c)
         vel, ang = pb.getBaseVelocity(b, physicsClientId=c)
         R = np.array(pb.getMatrixFromQuaternion(quat)).reshape(3, 3)
-        joints = [pb.getJointState(b, j, physicsClientId=c)[:2] for j in getattr(world.robot, "motors", [])]
+        motors = getattr(world.robot, "motors", [])  # the Ball has none
+        joints = [pb.getJointState(b, j, physicsClientId=c)[:2] for j in motors]
         jq = np.asarray(mj_task.joints_from_bullet(np.array([q for q, _ in joints])))
         jv = np.asarray(mj_task.joints_from_bullet(np.array([v for _, v in joints])))
         qpos.append(np.concatenate([pos, [quat[3], quat[0], quat[1], quat[2]], jq]))
@@ -138,9 +138,8 @@ def one_step(name: str, episodes: int, seed: int) -> dict:
 
 def episodes(name: str, n: int, seed: int, physics: str) -> dict:
     spec = get_task(name)
+    # (an MJX env is a JaxEnv: its reset_batch / step_batch are the jitted vmaps)
     envs = {"bullet": make_env(spec, "bullet"), physics: make_env(spec, physics)}
-    if physics == "mjx":
-        envs[physics] = _jax_batch(envs[physics])
     out = {}
     for pattern in ("none", "push", "sine", "random"):
         acts = actions_for(pattern, np.random.default_rng(seed), n, spec.episode_len,
@@ -151,21 +150,6 @@ def episodes(name: str, n: int, seed: int, physics: str) -> dict:
             r = run_episodes(env, keys, acts)
             out[pattern][b] = {k: float(np.mean(v)) for k, v in r.items()}
     return out
-
-
-class _jax_batch:
-    """A JaxEnv stepped in batch from Python (reset_batch / step_batch), for run_episodes."""
-
-    def __init__(self, env):
-        self.env = env
-        self._reset = jax.jit(jax.vmap(env.reset))
-        self._step = jax.jit(jax.vmap(env.step))
-
-    def reset_batch(self, keys):
-        return self._reset(jnp.asarray(keys))
-
-    def step_batch(self, state, actions):
-        return self._step(state, jnp.asarray(actions))
 
 
 def main():

@@ -23,9 +23,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(Path(__file__).parent))
 
-from mujoco_gap import _jax_batch  # noqa: E402
 from r2pac_jax.data.checks import normalised  # noqa: E402
 from r2pac_jax.data.factory import ppo_lagrangian as ppo  # noqa: E402
 from r2pac_jax.envs.bullet import make_env  # noqa: E402
@@ -75,8 +73,7 @@ def main():
     out = dict(task=args.task, updates=args.updates, env_steps=args.updates * 5000,
                train_s=train_s)
     for backend in ("bullet", "mujoco", "mjx"):
-        env = make_env(spec, backend)
-        env = _jax_batch(env) if backend == "mjx" else env
+        env = make_env(spec, backend)  # mjx: a JaxEnv, batched by its own step_batch
         state = env.reset_batch(keys)
         ret, cost = np.zeros(args.episodes), np.zeros(args.episodes)
         done = np.zeros(args.episodes, bool)

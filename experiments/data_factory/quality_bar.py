@@ -200,15 +200,15 @@ def report(out: Path) -> str:
             cells[task] = row
     if not cells:
         return "no finished run yet"
-    skipped = {t: {a: r.pop(a)["skipped"] for a in list(r) if "skipped" in r[a]}
+    # skipped cells stay in `cells` (the verdicts name them) and out of the score table
+    skipped = {t: {a: v["skipped"] for a, v in r.items() if "skipped" in v}
                for t, r in cells.items()}
-    lines = [results_table(cells, list(algos)), ""]
+    scored = {t: {a: v for a, v in r.items() if "skipped" not in v} for t, r in cells.items()}
+    lines = [results_table(scored, list(algos)), ""]
     lines += [f"{t}: no {', '.join(s)} ({next(iter(s.values()))})." for t, s in skipped.items()
               if s]
     if any(skipped.values()):
         lines.append("")
-    for t, s in skipped.items():  # back in the rows, so the verdicts can name them
-        cells[t].update({a: {"skipped": why} for a, why in s.items()})
     if "bc-safe-mlp" in algos:
         lines += ["| Task | verdict | r2pac against bc-safe-mlp (reported) |", "|---|---|---|"]
         lines += [f"| {t} | {verdict(r)} | {verdict(r, 'bc-safe-mlp')} |"

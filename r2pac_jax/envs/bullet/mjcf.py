@@ -33,8 +33,8 @@ Where MuJoCo has no equivalent of Bullet's model (each gap is measured in benchm
 - the Car's drivetrain (CAR_SPEED_SCALE, CAR_DRIVE_FORCE, car_drive_fit.py): each axle's two
   wheels are driven as an open differential (a velocity servo on their mean speed) toward a
   top speed and within a force limit read off the original's full-throttle run, the two fitted
-  numbers of these models; the original's eight gear constraints (rings, spiders, side gears) have no
-  MuJoCo equivalent that reproduces what pybullet makes of them (they are not satisfiable
+  numbers of these models; the original's eight gear constraints (rings, spiders, side gears)
+  have no MuJoCo equivalent that reproduces what pybullet makes of them (they are not satisfiable
   together, and its solver's compromise passes on a fraction of the motors' 20 N m). Its
   steering servos follow pybullet's position control (10% of the error per sub-step, by a
   stiff velocity servo on the error); the chassis collides through the convex hull of the
@@ -61,7 +61,7 @@ from r2pac_jax.envs.bullet.robots import ASSETS
 PLANE_FRICTION = 0.8
 WALL_FRICTION = 0.5  # pybullet's default for a URDF without a <contact> block
 
-# -- robots: pybullet's own numbers (getDynamicsInfo / getJointInfo after loading) ------------------
+# -- robots: pybullet's own numbers (getDynamicsInfo / getJointInfo after loading) -------------
 
 BALL = dict(mass=0.3, inertia=(0.03, 0.03, 0.03), radius=0.5, friction=1.1, rolling=0.03)
 
@@ -207,7 +207,8 @@ def _car(task) -> dict:
     # MuJoCo, test_bullet_mujoco's MJX = C MuJoCo check caught it)
     steer_kv = CAR_SERVO_STEPS * CAR_STEER_INERTIA / dt
     rate = CAR_STEER_GAIN / dt
-    actuators = "".join(f'<motor name="drive_{a}" tendon="{a}" gear="1"/>' for a in ("rear", "front"))
+    actuators = "".join(f'<motor name="drive_{a}" tendon="{a}" gear="1"/>'
+                        for a in ("rear", "front"))
     actuators += "".join(
         f'<general name="steer_{n}" joint="steer_{n}" gainprm="{steer_kv * rate!r}" '
         f'biastype="affine" biasprm="0 {-steer_kv * rate!r} {-steer_kv!r}"/>'
@@ -217,8 +218,8 @@ def _car(task) -> dict:
         f'<joint joint="{a}_right" coef="0.5"/></fixed>' for a in ("rear", "front"))
     return dict(body=body, actuators=actuators, tendons=tendons, friction=None,
                 integrator="implicitfast",
-                assets=f'<mesh name="chassis" file="{ASSETS / "meshes" / "chassis_differential.STL"}" '
-                       f'scale="3 3 3"/>')
+                assets=f'<mesh name="chassis" scale="3 3 3" '
+                       f'file="{ASSETS / "meshes" / "chassis_differential.STL"}"/>')
 
 
 ROBOT_BODIES = {"Ball": _ball, "Ant": _ant, "Drone": _drone, "Car": _car}

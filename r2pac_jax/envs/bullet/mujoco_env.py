@@ -7,9 +7,9 @@ turns MuJoCo's state into the view the shared rules read (position, (x, y, z, w)
 world-frame velocities, the Ant's joints and foot contacts, the Drone's Euler angles, rotor
 speeds and ground contacts) and the action into MuJoCo's inputs (the Ball's world-frame push,
 the Ant's torques, the Drone's rotor motors and propeller thrust, the Car's drives and steering
-servos, Bullet's velocity damping of the base and rotors). So observation, reward, cost and termination are the very functions the bullet
-backend runs; only the physics differs, and that gap is measured (benchmarks/FIDELITY.md,
-`benchmarks/fidelity_bullet/mujoco_gap.py`).
+servos, Bullet's velocity damping of the base and rotors). So observation, reward, cost and
+termination are the very functions the bullet backend runs; only the physics differs, and that
+gap is measured (benchmarks/FIDELITY.md, `benchmarks/fidelity_bullet/mujoco_gap.py`).
 
 A reset places the robot at the sampled pose at rest and takes one physics step without inputs
 before the first observation, as the original does (`settle` in the extras); the Run reward's
@@ -36,12 +36,6 @@ DAMPING = 0.04  # btMultiBody's linear and angular damping: m v k (1 + |v|)
 # none, and its contact holds until the box is about 1 mm up (a DroneRun lift-off: reported at
 # 1.1 mm, not at 1.6 mm).
 CONTACT_DISTANCE = {"Ant": 0.01, "Drone": 1e-3}
-
-
-def quat_to_mat(q_wxyz: jax.Array) -> jax.Array:
-    """[4] (w, x, y, z), not necessarily unit -> [3, 3] rotation matrix (MuJoCo's formulas, as
-    the navigation tasks use them)."""
-    return quat2mat(normalize_quat(q_wxyz))
 
 
 def euler_from_quat(q_xyzw: jax.Array) -> jax.Array:
@@ -79,14 +73,11 @@ class BulletMjTask(MjTask):
     """A Bullet task on a MuJoCo model (see the module docstring)."""
 
     def __init__(self, task: BulletTask):
-        import mujoco
-
         self.bt, self.robot = task, task.robot
         self.name, self.obs_dim, self.act_dim = task.name, task.obs_dim, task.act_dim
         self.episode_len, self.frame_skip = task.episode_len, task.frame_skip
         m = self._model = mjcf.load_model(task)
-        body = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n)  # noqa: E731
-        geom = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n)  # noqa: E731
+        body, geom = (lambda n: m.body(n).id), (lambda n: m.geom(n).id)
         self.nbody, self.root = m.nbody, body("robot")
         self.base_mass = float(m.body_mass[self.root])
         self.base_inertia = np.array(m.body_inertia[self.root])
@@ -103,13 +94,9 @@ class BulletMjTask(MjTask):
         else:
             self.touch = []
         if name == "Car":
-            joint = lambda n: m.jnt_qposadr[mujoco.mj_name2id(  # noqa: E731
-                m, mujoco.mjtObj.mjOBJ_JOINT, n)]
-            self.steer_q = [int(joint("steer_left")), int(joint("steer_right"))]
-            dof = lambda n: m.jnt_dofadr[mujoco.mj_name2id(  # noqa: E731
-                m, mujoco.mjtObj.mjOBJ_JOINT, n)]
-            self.wheel_v = [int(dof(n)) for n in ("rear_left", "rear_right", "front_left",
-                                                   "front_right")]
+            self.steer_q = [int(m.joint(n).qposadr[0]) for n in ("steer_left", "steer_right")]
+            self.wheel_v = [int(m.joint(n).dofadr[0]) for n in ("rear_left", "rear_right",
+                                                                 "front_left", "front_right")]
             # the servo's gain: the axle's wheels (2 I on their mean speed) to the target in one
             # control step
             self.drive_kv = (2 * mjcf.CAR_WHEEL["inertia"][2]
@@ -147,18 +134,18 @@ class BulletMjTask(MjTask):
     def bullet_view(self, v: dict, before: dict = None) -> dict:
         """The rules' view (tasks.py) of a MuJoCo view; `before` gives `dpos`."""
         qpos, qvel = v["qpos"], v["qvel"]
-        q = qpos[3:7]
-        R = quat_to_mat(q)
-        view = dict(pos=qpos[:3], quat=jnp.concatenate([q[1:], q[:1]]) / jnp.linalg.norm(q),
-                    vel=qvel[:3], angvel=R @ qvel[3:6])
+        q = normalize_quat(qpos[3:7])
+        view = dict(pos=qpos[:3], quat=jnp.concatenate([q[1:], q[:1]]), vel=qvel[:3],
+                    angvel=quat2mat(q) @ qvel[3:6])
         view["dpos"] = (qpos[:3] - before["qpos"][:3] if before is not None
                         else jnp.zeros(3, qpos.dtype))
         if self.touch:
             xpos = v["geom_xpos"]
             xmat = v["geom_xmat"].reshape(-1, 3, 3)
+            reach = CONTACT_DISTANCE[self.robot.name]
             touch = [jnp.zeros(()) if t is None else
                      (_lowest_z(t[0], xpos[t[1]], xmat[t[1]], self.geom_size[t[1]])
-                      <= CONTACT_DISTANCE[self.robot.name]).astype(jnp.float32) for t in self.touch]
+                      <= reach).astype(jnp.float32) for t in self.touch]
         if self.robot.name == "Ant":
             view["joints"] = jnp.stack([qpos[7:15], qvel[6:14]], axis=1)
             view["feet"] = jnp.stack(touch)
@@ -185,7 +172,7 @@ class BulletMjTask(MjTask):
     def inputs(self, before, action, extras):
         v = self.bullet_view(before)
         a = jnp.clip(action, -1.0, 1.0)
-        R = quat_to_mat(before["qpos"][3:7])
+        R = quat2mat(normalize_quat(before["qpos"][3:7]))
         xfrc = jnp.zeros((self.nbody, 6))
         speed, spin = jnp.linalg.norm(v["vel"]), jnp.linalg.norm(v["angvel"])
         inertia = R @ jnp.diag(jnp.asarray(self.base_inertia)) @ R.T
@@ -221,7 +208,7 @@ class BulletMjTask(MjTask):
             brake = spin_inertia * target * DAMPING * (1 + jnp.abs(target))
             ctrl = jnp.asarray(self.rotor_damping) * target + brake
             climb = jnp.dot(v["vel"], axis)
-            thrust = jax.vmap(lambda s: _thrust(r, s, climb))(target * jnp.asarray(r.directions))
+            thrust = r.thrust(target * jnp.asarray(r.directions), climb)  # per rotor
             rotor_i = R @ jnp.diag(jnp.asarray(self.rotor_inertia)) @ R.T
             for i, bid in enumerate(self.rotor_bodies):
                 w = v["angvel"] + v["rotors"][i] * axis  # the rotor's own angular velocity
@@ -231,13 +218,6 @@ class BulletMjTask(MjTask):
         if name != "Car":
             ctrl = jnp.where(keep, ctrl, 0.0)
         return {"ctrl": ctrl, "xfrc_applied": jnp.where(keep, xfrc, 0.0)}
-
-
-def _thrust(r, speed, v0):
-    """The Drone's propeller formula (robots.Drone.thrust) in JAX."""
-    tmp = speed / (2 * np.pi) * r.pitch
-    diameter = (4.0 * r.area / np.pi) ** 0.5
-    return r.air_density * r.area * (tmp ** 2 - tmp * v0) * (r.k1 * diameter / r.pitch) ** r.k2
 
 
 class BulletMjxEnv(MjxEnv):

@@ -329,7 +329,8 @@ class Drone(Robot):
         self.reset_joints(world, pose)
 
     def thrust(self, speed: float, v0: float) -> float:
-        """The original's propeller formula (N) at rotor speed `speed` (rad/s), climb v0."""
+        """The original's propeller formula (N) at rotor speed `speed` (rad/s), climb v0: float64
+        scalars on the bullet backend, JAX arrays on the MuJoCo ones (mujoco_env.py)."""
         tmp = speed / (2 * np.pi) * self.pitch
         diameter = (4.0 * self.area / np.pi) ** 0.5
         return self.air_density * self.area * (tmp ** 2 - tmp * v0) * (
