@@ -66,6 +66,26 @@ def toy_arrays(episodes=((4, "timeout"), (3, "terminal")), obs_dim=3, act_dim=2,
     return {k: np.concatenate(v) for k, v in parts.items()}
 
 
+def random_action_arrays(env, n: int, seed: int = 0) -> dict:
+    """DSRL-format arrays of `n` whole episodes of uniform random actions in a batched Python-loop
+    env (reset_batch / step_batch), episode-major ([n * episode_len, ...])."""
+    rng = np.random.default_rng(seed)
+    st = env.reset_batch(jax.random.split(jax.random.PRNGKey(seed), n))
+    parts = {k: [] for k in ("observations", "next_observations", "actions", "rewards", "costs",
+                             "terminals", "timeouts")}
+    for _ in range(env.episode_len):
+        a = rng.uniform(-1, 1, (n, env.act_dim)).astype(np.float32)
+        nxt = env.step_batch(st, a)
+        for k, v in (("observations", st.obs), ("next_observations", nxt.obs), ("actions", a),
+                     ("rewards", nxt.reward), ("costs", nxt.cost),
+                     ("terminals", nxt.terminated), ("timeouts", nxt.truncated)):
+            parts[k].append(np.asarray(v))
+        st = nxt
+    # [T, n, ...] -> episode-major [n * T, ...]
+    return {k: np.stack(v, 1).reshape((n * env.episode_len,) + np.shape(v[0])[1:])
+            for k, v in parts.items()}
+
+
 @pytest.fixture(scope="session")
 def reach_avoid_data(tmp_path_factory):
     """A small generated ReachAvoid dataset (60 trajectories), shared across tests."""

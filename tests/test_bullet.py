@@ -375,21 +375,9 @@ def test_train_cli_on_a_bullet_task(tmp_path):
     from r2pac_jax.data import write_dsrl
     from r2pac_jax.train import main
 
-    env = make_env(get_task("BallRun"))
-    rng = np.random.default_rng(0)
-    rows = {k: [] for k in ("observations", "next_observations", "actions", "rewards", "costs",
-                            "terminals", "timeouts")}
-    st = env.reset_batch(jax.random.split(jax.random.PRNGKey(0), 8))
-    for _ in range(env.episode_len):
-        a = rng.uniform(-1, 1, (8, 2)).astype(np.float32)
-        nxt = env.step_batch(st, a)
-        for k, v in (("observations", st.obs), ("next_observations", nxt.obs), ("actions", a),
-                     ("rewards", nxt.reward), ("costs", nxt.cost),
-                     ("terminals", nxt.terminated), ("timeouts", nxt.truncated)):
-            rows[k].append(np.asarray(v))
-        st = nxt
-    data = {k: np.stack(v, 1).reshape((8 * env.episode_len,) + np.asarray(v[0]).shape[1:])
-            for k, v in rows.items()}
+    from conftest import random_action_arrays
+
+    data = random_action_arrays(make_env(get_task("BallRun")), 8)
     path = write_dsrl(tmp_path / "ballrun.hdf5", data)
     out = tmp_path / "run"
     assert main(["--task", "BallRun", "--algo", "bc-all-mlp", "--seeds", "2", "--eval-episodes",

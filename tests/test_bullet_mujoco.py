@@ -129,12 +129,10 @@ def test_mjx_matches_c_mujoco(task, steps):
     """The MJX backend runs the same model as C MuJoCo (float32 against float64)."""
     mjx_env, c_env = make_env(get_task(task), "mjx"), make_env(get_task(task), "mujoco")
     keys = jax.random.split(jax.random.PRNGKey(3), 4)
-    s = jax.jit(jax.vmap(mjx_env.reset))(keys)
-    s2 = c_env.reset_batch(keys)
-    step = jax.jit(jax.vmap(mjx_env.step))
+    s, s2 = mjx_env.reset_batch(keys), c_env.reset_batch(keys)
     rng = np.random.default_rng(0)
     for _ in range(steps):
         a = rng.uniform(-1, 1, (4, mjx_env.act_dim)).astype(np.float32)
-        s, s2 = step(s, jnp.asarray(a)), c_env.step_batch(s2, a)
+        s, s2 = mjx_env.step_batch(s, jnp.asarray(a)), c_env.step_batch(s2, a)
     np.testing.assert_allclose(np.asarray(s.obs), s2.obs, atol=1e-3)
     np.testing.assert_allclose(np.asarray(s.reward), s2.reward, atol=1e-3)

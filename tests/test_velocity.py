@@ -315,23 +315,11 @@ def test_train_cli_evaluates_a_velocity_task(tmp_path):
     tiny DSRL-format file of random-action episodes from our env and evaluates in our env."""
     from r2pac_jax.data.dsrl import load_dsrl, write_dsrl
 
+    from conftest import random_action_arrays
+
     env = c_env("SwimmerVelocity")
-    n, T = 3, 1000
-    rng = np.random.default_rng(0)
-    st = env.reset_batch(jax.random.split(jax.random.PRNGKey(0), n))
-    parts = {k: [] for k in ("observations", "next_observations", "actions", "rewards",
-                             "costs", "terminals", "timeouts")}
-    for t in range(T):
-        a = rng.uniform(-1, 1, (n, 2)).astype(np.float32)
-        nxt = env.step_batch(st, a)
-        for k, v in (("observations", st.obs), ("next_observations", nxt.obs), ("actions", a),
-                     ("rewards", nxt.reward), ("costs", nxt.cost),
-                     ("terminals", nxt.terminated), ("timeouts", nxt.truncated)):
-            parts[k].append(np.asarray(v))
-        st = nxt
-    # [T, n, ...] -> episode-major [n * T, ...]
-    arrays = {k: np.swapaxes(np.stack(v), 0, 1).reshape((n * T,) + np.shape(v[0])[1:])
-              for k, v in parts.items()}
+    n, T = 3, env.episode_len  # 1000
+    arrays = random_action_arrays(env, n)
     path = write_dsrl(tmp_path / "SafetySwimmerVelocityGymnasium-v1-tiny.hdf5", arrays)
     ds = load_dsrl(path)
     assert ds.size == n * T and ds.timeouts.sum() == n
