@@ -321,7 +321,7 @@ class BulletEnv:
         rows = [self._worlds[w].step(actions[i], before["pos"][i]) for i, w in enumerate(ids)]
         after = {k: np.stack([r[k] for r in rows]) for k in self.view_keys}
         reward, cost, terminated, extras, obs = self._outcome(
-            self._as_f32(before), self._as_f32(after), jnp.asarray(actions), state.info)
+            self._as_f32(before), self._as_f32(after), actions, state.info)
         t0 = np.asarray(state.t)
         t = t0 + 1
         log = np.array(state.physics["actions"], copy=True)
@@ -345,7 +345,9 @@ class BulletEnv:
 
     @staticmethod
     def _as_f32(view: dict) -> dict:
-        return {k: jnp.asarray(v, jnp.float32) for k, v in view.items()}
+        # numpy's rounding (IEEE, as XLA's convert): an eager jnp conversion per key and step
+        # cost more than the physics on a single live episode
+        return {k: np.asarray(v, np.float32) for k, v in view.items()}
 
     def _state(self, view, ids, obs, reward, cost, terminated, t, key, extras,
                record) -> EnvState:
