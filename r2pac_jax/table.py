@@ -128,6 +128,22 @@ def estimate(tasks, algos, args, ds_of, log) -> float:
     return total
 
 
+def finished_cells(out: Path, manifest: dict, algos, skip=()) -> dict:
+    """cells[task][algo] of the tasks in DIR's manifest not in `skip`, read from their
+    finished results.json: a table grows task by task over sessions, and a task whose file this
+    machine no longer holds keeps its row (the manifest pinned that file's sha256 when the cells
+    were made)."""
+    cells = {}
+    for t in manifest["datasets"]:
+        if t in skip:
+            continue
+        row = {a: json.loads((out / t / a / "results.json").read_text()) for a in algos
+               if (out / t / a / "results.json").exists()}
+        if row:
+            cells[t] = row
+    return cells
+
+
 def write_outputs(out: Path, cells: dict, algos, families: dict, caption: str) -> str:
     """table.md, table.csv and table.png from cells[task][algo] (results.json dicts)."""
     from r2pac_jax.io import atomic_write_text
@@ -223,12 +239,15 @@ def main(argv=None) -> int:
             DirectoryBusy, TrainingDiverged, WriteError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    earlier = finished_cells(out, manifest, algos, skip=cells)
+    cells = {**earlier, **cells}  # the tasks asked for last, in their order
+    families = {name: get_task(name).family for name in cells}
     versions = sorted({d["version"] for d in manifest["datasets"].values()})
     files = ", ".join(f"{t}: {d['file']}" for t, d in manifest["datasets"].items()
                       if t in cells)
     caption = (f"Preset {args.preset}, {args.seeds} seeds, {args.episodes} evaluation episodes per "
                f"seed, final policies; data {', '.join(versions)} ({files}).")
-    md = write_outputs(out, cells, algos, {t.name: t.family for t in tasks}, caption)
+    md = write_outputs(out, cells, algos, families, caption)
     log("\n" + md)
     log(f"\n{out / 'table.md'}, {out / 'table.csv'}, {out / 'table.png'}")
     return 0

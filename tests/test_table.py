@@ -59,6 +59,18 @@ def test_the_table_command_runs_resumes_and_refuses_another_preset(tmp_path, dat
     assert main([a if a != "quick" else "paper" for a in argv]) == 2
     assert "holds a table made with preset='quick'" in capsys.readouterr().err
 
+    # a task finished in DIR earlier, whose file this machine no longer holds, keeps its row
+    import shutil
+    man = json.loads((out / "manifest.json").read_text())
+    man["datasets"]["HalfCheetahVelocity"] = dict(man["datasets"]["ReachAvoid"], file="gone.hdf5")
+    (out / "manifest.json").write_text(json.dumps(man))
+    shutil.copytree(out / "ReachAvoid" / "coptidice", out / "HalfCheetahVelocity" / "coptidice")
+    assert main(argv) == 0
+    md = (out / "table.md").read_text()
+    assert "| HalfCheetahVelocity |" in md and "velocity average" in md and "gone.hdf5" in md
+    rows = (out / "table.csv").read_text().splitlines()
+    assert len(rows) == 4 and rows[1].startswith("HalfCheetahVelocity,velocity,coptidice")
+
 
 def test_unknown_algorithm_names_the_known_ones(tmp_path, capsys):
     assert main(["--tasks", "ReachAvoid", "--algos", "cdq", "--out", str(tmp_path)]) == 2

@@ -1,0 +1,60 @@
+#!/usr/bin/env bash
+# One task's whole v2 chain, each step resumable, so a session can start it first and leave it:
+#   1. the learned-behaviour file at DSRL's size and its data checks (make_learned.sh);
+#   2. the file's card, plots and checks copied into results_v2/TASK (committed);
+#   3. the quality bar v2 (quality_bar.py --data v2, archived into results_v2) and its report;
+#   4. Table 1's cells for ALGOS (python -m r2pac_jax.table) in TABLE_OUT, the quality bar's
+#      r2pac and bc-all-mlp runs reused (same configuration, seeds and file: the table checks
+#      each one's identity before reading it back); the cells' results and configs, manifest and
+#      table then go into the committed experiments/table1/cpu-quick.
+#
+#   nice -n 5 bash experiments/data_factory/task_pipeline.sh TASK [TASK ...] > runs/pipeline.log 2>&1
+#
+# Environment: QB_OUT (runs/quality_bar_v2), TABLE_OUT (runs/table1), ALGOS (Table 1's columns,
+# default bc-all-mlp,cpq,coptidice,r2pac: the quickest on a CPU; add bcq-lag,cdt,fisor where the
+# session has the hours: `python -m r2pac_jax.table ... --estimate`), SKIP_TABLE=1 to stop after 3.
+# A killed pipeline restarts where it stopped: finished files, runs and cells are skipped.
+set -uo pipefail
+cd "$(dirname "$0")/../.."
+QB_OUT="${QB_OUT:-runs/quality_bar_v2}"
+TABLE_OUT="${TABLE_OUT:-runs/table1}"
+ALGOS="${ALGOS:-bc-all-mlp,cpq,coptidice,r2pac}"
+ARCHIVE=experiments/data_factory/results_v2
+TABLE_KEEP=experiments/table1/cpu-quick  # the committed CPU table (results and configs only)
+for t in "$@"; do
+  echo "== $t: data $(date -u +%FT%TZ)"
+  bash experiments/data_factory/make_learned.sh "$t" || { echo "!! $t: data failed"; continue; }
+  f=$(python -c "from r2pac_jax.data import factory; from r2pac_jax.tasks import get_task; t = get_task('$t'); print(factory.dataset_path(t, 0, t.collection.trajectories, 'ppo-lagrangian'))")
+  if [ ! -f "$f" ] || [ ! -f "$f.checks.json" ]; then
+    echo "!! $t: no file or no checks at $f"; continue
+  fi
+  stem="${f%.hdf5}"
+  mkdir -p "$ARCHIVE/$t"
+  for x in "$f.checks.json" "$stem.json" "$stem.png" "$stem.training.png"; do
+    [ -f "$x" ] && cp "$x" "$ARCHIVE/$t/"
+  done
+  echo "== $t: quality bar $(date -u +%FT%TZ)"
+  python experiments/data_factory/quality_bar.py --tasks "$t" --data v2 --out "$QB_OUT" \
+    --archive "$ARCHIVE" || { echo "!! $t: quality bar failed"; continue; }
+  python experiments/data_factory/quality_bar.py --report-only --out "$ARCHIVE" | tail -3
+  if [ "${SKIP_TABLE:-0}" = 1 ]; then continue; fi
+  echo "== $t: Table 1 cells ($ALGOS) $(date -u +%FT%TZ)"
+  for a in r2pac bc-all-mlp; do  # the quality bar's runs are these cells
+    if [ -f "$QB_OUT/$t/$a/results.json" ] && [ ! -e "$TABLE_OUT/$t/$a" ]; then
+      mkdir -p "$TABLE_OUT/$t" && cp -r "$QB_OUT/$t/$a" "$TABLE_OUT/$t/$a"
+    fi
+  done
+  # the committed table's cells and manifest first, so its earlier tasks keep their rows
+  mkdir -p "$TABLE_OUT" && cp -rn "$TABLE_KEEP"/. "$TABLE_OUT"/
+  if python -m r2pac_jax.table --tasks "$t" --algos "$ALGOS" --seeds 3 --episodes 20 \
+      --out "$TABLE_OUT" --no-progress; then
+    # back into the committed table: each cell's results and config, the manifest, the table
+    (cd "$TABLE_OUT" && find . -maxdepth 3 \( -name results.json -o -name config.json \
+       -o -name manifest.json -o -name 'table.*' \) -print) | while read -r x; do
+      mkdir -p "$TABLE_KEEP/$(dirname "$x")" && cp "$TABLE_OUT/$x" "$TABLE_KEEP/$x"
+    done
+  else
+    echo "!! $t: table failed"
+  fi
+done
+echo "== pipeline done $(date -u +%FT%TZ)"
