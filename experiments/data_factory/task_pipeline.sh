@@ -46,15 +46,15 @@ for t in "$@"; do
   done
   # the committed table's cells and manifest first, so its earlier tasks keep their rows
   mkdir -p "$TABLE_OUT" && cp -rn "$TABLE_KEEP"/. "$TABLE_OUT"/
-  if python -m r2pac_jax.table --tasks "$t" --algos "$ALGOS" --seeds 3 --episodes 20 \
-      --out "$TABLE_OUT" --no-progress; then
-    # back into the committed table: each cell's results and config, the manifest, the table
-    (cd "$TABLE_OUT" && find . -maxdepth 3 \( -name results.json -o -name config.json \
-       -o -name manifest.json -o -name 'table.*' \) -print) | while read -r x; do
-      mkdir -p "$TABLE_KEEP/$(dirname "$x")" && cp "$TABLE_OUT/$x" "$TABLE_KEEP/$x"
-    done
-  else
-    echo "!! $t: table failed"
-  fi
+  python -m r2pac_jax.table --tasks "$t" --algos "$ALGOS" --seeds 3 --episodes 20 \
+    --out "$TABLE_OUT" --no-progress || echo "!! $t: table failed"
+  # back into the committed table, finished cells only (a failed or partial table keeps the
+  # cells it finished): each cell's results and config, the manifest, the table
+  (cd "$TABLE_OUT" && find . -maxdepth 3 \( -name results.json -o -name manifest.json \
+     -o -name 'table.*' \) -print) | while read -r x; do
+    d=$(dirname "$x")
+    mkdir -p "$TABLE_KEEP/$d" && cp "$TABLE_OUT/$x" "$TABLE_KEEP/$x"
+    [ "$(basename "$x")" = results.json ] && cp "$TABLE_OUT/$d/config.json" "$TABLE_KEEP/$d/"
+  done
 done
 echo "== pipeline done $(date -u +%FT%TZ)"
