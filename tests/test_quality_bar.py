@@ -131,3 +131,22 @@ def test_safe_cloners_on_data_without_a_safe_episode_are_skipped_and_named(qb, t
     assert ("| SwimmerVelocity | fail: no bc-safe (the data hold no episode with cost <= kappa) "
             "| fail: no bc-safe-mlp") in text
     assert "skipped: the data hold no episode" in qb.details(out, "SwimmerVelocity")
+
+
+def test_the_v2_chain_covers_every_task_with_a_learned_source_and_skips_finished_ones(tmp_path):
+    """make_learned.sh's order lists every registered task DSRL's recipe can make (a new task
+    cannot silently drop out of the data campaign), and next_tasks.py skips archived ones."""
+    from r2pac_jax.data import factory
+    from r2pac_jax.tasks import TASKS
+
+    spec = importlib.util.spec_from_file_location("next_tasks", SCRIPT.with_name("next_tasks.py"))
+    nt = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(nt)
+    order = nt.ordered_tasks()
+    assert len(order) == len(set(order))
+    wanted = {n for n, t in TASKS.items()
+              if t.collection is not None and t.family != "demo" and factory.has_source(t)}
+    assert wanted and set(order) == wanted
+    (tmp_path / order[0]).mkdir()
+    (tmp_path / order[0] / "r2pac.json").write_text("{}")
+    assert nt.unfinished(tmp_path) == order[1:]
