@@ -73,6 +73,8 @@ def test_imitability_trains_the_three_cloners(tmp_path, reach_avoid_data):
     assert set(imi) >= set(checks.IMITATORS)
     for algo in checks.IMITATORS:
         assert len(imi[algo]["normalized_cost"]["per_seed"]) == 2
+        assert imi[algo]["eval_backend"] == "jax"  # ReachAvoid: the pure-JAX env scored it
+    assert imi["eval_backend"] == "jax"
     flags = imi["pass"]
     assert set(flags) == {"bc-safe_safe", "bc-safe_return", "bc-safe-mlp_safe",
                           "bc-safe-mlp_return", "bc-all-mlp_cost_matches_data"}

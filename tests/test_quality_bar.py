@@ -101,10 +101,14 @@ def test_v2_report_has_the_mlp_cloners_and_a_second_verdict(qb, tmp_path):
                        ("bc-all-mlp", 0.5, 2.0), ("bc-safe-mlp", 0.45, 0.6)]:
         d = tmp_path / "CarGoal1" / algo
         d.mkdir(parents=True)
-        (d / "results.json").write_text(json.dumps(_res(r, c)))
+        (d / "results.json").write_text(json.dumps(dict(_res(r, c), eval_backend="mujoco")))
     text = qb.report(tmp_path)
     assert "bc-safe-mlp reward" in text and "bc-all-mlp reward" in text
-    assert "| CarGoal1 | pass | fail: r2pac reward <= bc-safe-mlp |" in text
+    assert "| CarGoal1 | pass | fail: r2pac reward <= bc-safe-mlp | mujoco |" in text
+    # each row names the simulator that scored it; runs that predate the record say --physics
+    assert qb.simulator({"a": {"eval_backend": "bullet"}, "b": {"eval_backend": "mjx"}}) == \
+        "bullet, mjx"
+    assert qb.simulator({"a": {"physics": "auto"}, "b": {"skipped": "x"}}) == "physics=auto"
     assert qb.learned_file("BallRun") is None
 
 

@@ -119,6 +119,15 @@ def verdict(row: dict, against: str = "bc-safe") -> str:
     return "pass" if not problems else "fail: " + ", ".join(problems)
 
 
+def simulator(row: dict) -> str:
+    """The simulator(s) that scored a row's runs (scores of different simulators, e.g. the
+    Bullet tasks' `bullet` and `mjx`, are not interchangeable): each run's recorded
+    `eval_backend`, else its `--physics` as asked (runs made before the key existed)."""
+    names = {r.get("eval_backend") or f"physics={r.get('physics', '?')}"
+             for r in row.values() if "skipped" not in r}
+    return ", ".join(sorted(names)) or "-"
+
+
 def _result_file(out: Path, task: str, algo: str) -> Path | None:
     """A run's results: a run directory's `results.json`, or an archived `ALGO.json`."""
     for f in (out / task / algo / "results.json", out / task / algo / "skipped.json",
@@ -210,12 +219,13 @@ def report(out: Path) -> str:
     if any(skipped.values()):
         lines.append("")
     if "bc-safe-mlp" in algos:
-        lines += ["| Task | verdict | r2pac against bc-safe-mlp (reported) |", "|---|---|---|"]
-        lines += [f"| {t} | {verdict(r)} | {verdict(r, 'bc-safe-mlp')} |"
+        lines += ["| Task | verdict | r2pac against bc-safe-mlp (reported) | evaluated by |",
+                  "|---|---|---|---|"]
+        lines += [f"| {t} | {verdict(r)} | {verdict(r, 'bc-safe-mlp')} | {simulator(r)} |"
                   for t, r in cells.items()]
     else:
-        lines += ["| Task | verdict |", "|---|---|"]
-        lines += [f"| {t} | {verdict(r)} |" for t, r in cells.items()]
+        lines += ["| Task | verdict | evaluated by |", "|---|---|---|"]
+        lines += [f"| {t} | {verdict(r)} | {simulator(r)} |" for t, r in cells.items()]
     text = "\n".join(lines) + "\n"
     atomic_write_text(out / "quality_bar.md", text)
     return text

@@ -101,7 +101,8 @@ def imitability(task: TaskSpec, path, cov: dict, seeds: Sequence[int], out_dir,
         res = Run(cfg, task, ds, Path(out_dir) / algo, Lanes.build(cfg, list(seeds)),
                   progress=False, log=log).run(resume=True)
         out[algo] = dict(normalized_reward=res["normalized_reward"],
-                         normalized_cost=res["normalized_cost"], wall_s=time.time() - t0)
+                         normalized_cost=res["normalized_cost"], wall_s=time.time() - t0,
+                         eval_backend=res.get("eval_backend"))
         log(f"{algo}: reward {res['normalized_reward']['per_seed']}, cost "
             f"{res['normalized_cost']['per_seed']}")
     target = cov["safe_mean_normalised_return"]
@@ -120,6 +121,9 @@ def imitability(task: TaskSpec, path, cov: dict, seeds: Sequence[int], out_dir,
     out["pass"] = flags
     out["targets"] = dict(safe_return_80pct=None if target is None else 0.8 * target,
                           data_mean_cost=data_cost, seeds=list(seeds), preset=preset)
+    # the simulator that scored the cloners (Bullet tasks: bullet and MJX scores differ)
+    out["eval_backend"] = ", ".join(sorted({r["eval_backend"] for r in out.values()
+                                            if isinstance(r, dict) and r.get("eval_backend")}))
     return out
 
 
