@@ -50,8 +50,8 @@ for t in "$@"; do
     --out "$TABLE_OUT" --no-progress || echo "!! $t: table failed"
   # back into the committed table, finished cells only (a failed or partial table keeps the
   # cells it finished): each cell's results and config, the manifest, the table
-  (cd "$TABLE_OUT" && find . -maxdepth 3 \( -name results.json -o -name manifest.json \
-     -o -name 'table.*' \) -print) | while read -r x; do
+  (cd "$TABLE_OUT" && find . -maxdepth 3 \( -name results.json -o -path './manifest.json' \
+     -o -path './table.*' \) -print) | while read -r x; do
     d=$(dirname "$x")
     mkdir -p "$TABLE_KEEP/$d" && cp "$TABLE_OUT/$x" "$TABLE_KEEP/$x"
     [ "$(basename "$x")" = results.json ] && cp "$TABLE_OUT/$d/config.json" "$TABLE_KEEP/$d/"
