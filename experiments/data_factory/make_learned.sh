@@ -20,7 +20,7 @@ fi
 for t in "${TASKS[@]}"; do
   echo "== $t $(date -u +%FT%TZ)"
   python -m r2pac_jax.data make --task "$t" --source ppo-lagrangian || echo "!! $t failed ($?)"
-  f=$(python -c "from r2pac_jax.data import factory; from r2pac_jax.tasks import get_task; t = get_task('$t'); print(factory.dataset_path(t, 0, t.collection.trajectories, 'ppo-lagrangian'))")
+  f=$(python -c "from r2pac_jax.data import factory; from r2pac_jax.tasks import get_task; print(factory.learned_path(get_task('$t')))")
   if [ -f "$f" ] && [ ! -f "$f.checks.json" ]; then
     echo "== checks $t $(date -u +%FT%TZ)"
     python -m r2pac_jax.data check "$f" | tail -1

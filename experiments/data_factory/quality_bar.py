@@ -44,7 +44,7 @@ def learned_file(task: str):
     t = get_task(task)
     if t.collection is None:
         return None
-    p = factory.dataset_path(t, 0, t.collection.trajectories, "ppo-lagrangian")
+    p = factory.learned_path(t)
     return p if p.exists() and factory.card_path(p).exists() else None
 
 

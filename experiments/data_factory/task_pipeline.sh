@@ -24,7 +24,7 @@ TABLE_KEEP=experiments/table1/cpu-quick  # the committed CPU table (results and 
 for t in "$@"; do
   echo "== $t: data $(date -u +%FT%TZ)"
   bash experiments/data_factory/make_learned.sh "$t" || { echo "!! $t: data failed"; continue; }
-  f=$(python -c "from r2pac_jax.data import factory; from r2pac_jax.tasks import get_task; t = get_task('$t'); print(factory.dataset_path(t, 0, t.collection.trajectories, 'ppo-lagrangian'))")
+  f=$(python -c "from r2pac_jax.data import factory; from r2pac_jax.tasks import get_task; print(factory.learned_path(get_task('$t')))")
   if [ ! -f "$f" ] || [ ! -f "$f.checks.json" ]; then
     echo "!! $t: no file or no checks at $f"; continue
   fi

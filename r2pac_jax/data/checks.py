@@ -122,8 +122,8 @@ def imitability(task: TaskSpec, path, cov: dict, seeds: Sequence[int], out_dir,
     out["targets"] = dict(safe_return_80pct=None if target is None else 0.8 * target,
                           data_mean_cost=data_cost, seeds=list(seeds), preset=preset)
     # the simulator that scored the cloners (Bullet tasks: bullet and MJX scores differ)
-    out["eval_backend"] = ", ".join(sorted({r["eval_backend"] for r in out.values()
-                                            if isinstance(r, dict) and r.get("eval_backend")}))
+    out["eval_backend"] = ", ".join(sorted({out[a]["eval_backend"] for a in IMITATORS
+                                            if out[a].get("eval_backend")}))
     return out
 
 

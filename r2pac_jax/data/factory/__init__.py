@@ -97,6 +97,12 @@ def dataset_path(task: TaskSpec, seed: int, trajectories: int, source: str = "sc
                           f"n{trajectories}{budget}.hdf5")
 
 
+def learned_path(task: TaskSpec, seed: int = 0) -> Path:
+    """The task's learned-behaviour file at DSRL's size and budget (what `data make --source
+    ppo-lagrangian` writes by default), whether or not it exists yet."""
+    return dataset_path(task, seed, task.collection.trajectories, "ppo-lagrangian")
+
+
 def card_path(path: Path) -> Path:
     return path.with_suffix(".json")
 
@@ -128,7 +134,7 @@ def find_learned(task: TaskSpec) -> Optional[Path]:
              if card_path(p).exists()]
     if not found:
         return None
-    default = dataset_path(task, 0, task.collection.trajectories, "ppo-lagrangian")
+    default = learned_path(task)
     if default in found:
         return default
     return max(found, key=lambda p: (p.stat().st_size, p.name))
