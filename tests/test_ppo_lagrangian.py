@@ -107,6 +107,9 @@ def test_resumed_generation_equals_an_uninterrupted_one(name, kw, tmp_path):
     part = tmp_path / "part.hdf5"
     episodes = tmp_path / "part.hdf5.partial" / "episodes"
     if kw["checkpoint_every"] == 2:  # killed between checkpoints: after update 3 of 5
+        # first killed before its first checkpoint: the next run starts afresh, its log too
+        assert collect.generate_learned(task, part, stop_after=1, **kw) is None
+        assert not (tmp_path / "part.hdf5.partial" / "state.pkl").exists()
         assert collect.generate_learned(task, part, stop_after=3, **kw) is None
         n_after_3 = len(list(episodes.glob("ep-*.npz")))
         assert collect.generate_learned(task, part, stop_after=0, **kw) is None  # resume only

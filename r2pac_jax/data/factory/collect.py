@@ -190,10 +190,12 @@ class Generation:
 
     def _restore(self) -> dict:
         st = self.dir / "state.pkl"
-        if not st.exists():
-            return self.fresh_state()
-        with open(st, "rb") as f:
-            state = pickle.load(f)
+        resumed = st.exists()
+        if resumed:
+            with open(st, "rb") as f:
+                state = pickle.load(f)
+        else:  # a run killed before its first checkpoint left episodes and log rows: drop them
+            state = self.fresh_state()
         # episodes written after the checkpoint, or dropped by the thinning it recorded
         keep = {e[0] for e in state["pool"]}
         for p in (self.dir / "episodes").glob("ep-*.npz"):
@@ -204,8 +206,9 @@ class Generation:
                 if ln and json.loads(ln)["update"] <= state["update"]] \
             if self._log_file.exists() else []
         self._log_file.write_text("".join(r + "\n" for r in rows))
-        self.log(f"resuming {self.dir} at update {state['update']} of {self.spec.updates} "
-                 f"({state['env_steps']} env steps, {len(state['pool'])} episodes pooled)")
+        if resumed:
+            self.log(f"resuming {self.dir} at update {state['update']} of {self.spec.updates} "
+                     f"({state['env_steps']} env steps, {len(state['pool'])} episodes pooled)")
         return state
 
     @property
