@@ -258,7 +258,7 @@ def run_group(sweep: Sweep, group: Group, out: Path, log=print, progress: bool =
     cfg = sweep.configs[group.group_id]
     cells_hp = [{k: v for k, v in c.values if k in vmapped(group.algo)} for c in group.cells]
     lanes = Lanes.build(cfg, sweep.seeds, cells_hp)
-    ds = load_task_dataset(task, sweep.dataset, announce=log)
+    ds = load_task_dataset(task, sweep.dataset, announce=log, progress=progress)
     gdir = out / "groups" / group.group_id
     run = Run(cfg, task, ds, gdir, lanes, physics=sweep.physics, progress=progress, log=log,
               dataset_label=ds.source, nonfinite="mark")

@@ -200,7 +200,8 @@ def main(argv=None) -> int:
 
         def ds_of(task):
             if task.name not in loaded:
-                loaded[task.name] = load_task_dataset(task, None, announce=log)
+                loaded[task.name] = load_task_dataset(task, None, announce=log,
+                                                     progress=not args.no_progress)
             return loaded[task.name]
 
         if args.estimate:

@@ -184,7 +184,8 @@ def main(argv=None) -> int:
         dirs = {a: out if a == args.algo else out / "baselines" / a for a in algos}
         if args.resume and not (out / "checkpoints").exists():
             log(f"note: --resume: {out} holds no checkpoint yet; starting afresh")
-        ds = load_task_dataset(task, args.dataset, announce=log)
+        ds = load_task_dataset(task, args.dataset, announce=log,
+                               progress=not args.no_progress)
         from r2pac_jax.data.checks import checks_path
 
         if not checks_path(ds.source).exists():

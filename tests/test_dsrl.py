@@ -121,3 +121,24 @@ def test_find_dsrl_file_by_task(tmp_path, monkeypatch):
     (tmp_path / "SafetyCarGoal1Gymnasium-v0-120-1671.hdf5").write_bytes(b"")
     (tmp_path / "SafetyCarGoal2Gymnasium-v0-120-4105.hdf5").write_bytes(b"")
     assert find_dsrl_file(task).name == "SafetyCarGoal1Gymnasium-v0-120-1671.hdf5"
+
+
+def test_no_progress_hides_the_generation_bar_but_not_the_announcements(tmp_path, monkeypatch,
+                                                                        capfd):
+    """`--no-progress` reaches the loader: a generated ReachAvoid dataset shows its tqdm bar only
+    when progress is on; the announcements are made either way."""
+    from r2pac_jax.data import factory, load_task_dataset
+    from r2pac_jax.tasks import get_task
+
+    monkeypatch.setenv("DSRL_DATASET_DIR", str(tmp_path / "none"))
+    monkeypatch.setattr(factory, "default_trajectories", lambda task: 12)
+    task = get_task("ReachAvoid")
+    for progress, data_dir in ((False, "quiet"), (True, "loud")):
+        monkeypatch.setenv("R2PAC_DATA_DIR", str(tmp_path / data_dir))
+        said = []
+        capfd.readouterr()
+        ds = load_task_dataset(task, announce=said.append, progress=progress)
+        err = capfd.readouterr().err
+        assert ds.observations.shape[0] > 0
+        assert said[0].startswith("dataset: none found for ReachAvoid; generating 12 trajectories")
+        assert ("ReachAvoid data" in err) == progress, err

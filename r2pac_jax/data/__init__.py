@@ -11,7 +11,8 @@ __all__ = ["Dataset", "DatasetError", "find_dsrl_file", "load_dsrl", "write_dsrl
            "load_task_dataset"]
 
 
-def _generate_learned(task: TaskSpec, announce: Callable[[str], None]) -> Dataset:
+def _generate_learned(task: TaskSpec, announce: Callable[[str], None],
+                      progress: bool = True) -> Dataset:
     """No data for a MuJoCo task: make DSRL's learned-behaviour data at DSRL's size (hours on a
     CPU, resumable: the same command continues it), then its fast checks."""
     from r2pac_jax.data import factory
@@ -28,7 +29,7 @@ def _generate_learned(task: TaskSpec, announce: Callable[[str], None]) -> Datase
              f"separately: python -m r2pac_jax.data make --task {task.name} --source "
              "ppo-lagrangian (--budget N for a smaller, recorded budget)")
     path = factory.generate_dataset(task, c.trajectories, seed=0, source="ppo-lagrangian",
-                                    progress=True, log=announce)
+                                    progress=True if progress else None, log=announce)
     res = check_file(path, task.name, fast=True, log=announce)
     announce(f"dataset: {path} (generated); coverage checks "
              f"{'passed' if res['passed'] else 'failed: ' + ', '.join(res['failed'])} "
@@ -39,11 +40,13 @@ def _generate_learned(task: TaskSpec, announce: Callable[[str], None]) -> Datase
 
 
 def load_task_dataset(task: TaskSpec, dataset: Optional[str] = None,
-                      announce: Callable[[str], None] = print) -> Dataset:
+                      announce: Callable[[str], None] = print,
+                      progress: bool = True) -> Dataset:
     """The training data, in order: `dataset`; a DSRL file on disk; a cached learned-behaviour
     dataset (data v2); a cached scripted one (with a warning on the MuJoCo tasks); else a
     freshly generated one (announced): learned behaviour at DSRL's size for the MuJoCo tasks
-    (hours, resumable), the scripted demonstration data for ReachAvoid (seconds)."""
+    (hours, resumable), the scripted demonstration data for ReachAvoid (seconds). `progress`
+    False hides the generation's progress bar (the announcements stay)."""
     from r2pac_jax.data import factory
 
     kw = dict(obs_dim=task.obs_dim, act_dim=task.act_dim, task_name=task.name)
@@ -68,7 +71,7 @@ def load_task_dataset(task: TaskSpec, dataset: Optional[str] = None,
                      f"{task.name} --source ppo-lagrangian")
         return load_dsrl(path, **kw)
     if task.collection is not None and task.family != "demo":
-        return _generate_learned(task, announce)
+        return _generate_learned(task, announce, progress)
     if not factory.has_source(task):
         raise DatasetError(
             f"no dataset for task {task.name}: no --dataset given, no DSRL file "
@@ -80,7 +83,8 @@ def load_task_dataset(task: TaskSpec, dataset: Optional[str] = None,
              f"{factory.cache_dir()} (python -m r2pac_jax.data make --task {task.name})")
     from tqdm import tqdm
 
-    with tqdm(total=n, unit="traj", desc=f"{task.name} data", dynamic_ncols=True) as bar:
+    with tqdm(total=n, unit="traj", desc=f"{task.name} data", dynamic_ncols=True,
+              disable=not progress) as bar:
         path = factory.generate_dataset(task, n, seed=0, progress=bar.update)
     announce(f"dataset: {path} (generated)")
     return load_dsrl(path, **kw)
