@@ -262,7 +262,7 @@ def test_train_prefers_learned_data_and_warns_on_scripted(tmp_path, monkeypatch)
     assert not any("warning" in m for m in said)
 
 
-def test_a_fresh_machine_makes_learned_data_with_its_eta(tmp_path, monkeypatch):
+def test_a_fresh_machine_makes_learned_data_with_its_eta(tmp_path, monkeypatch, capfd):
     """No data at all for a MuJoCo task: train's loader starts the learned generation (here at a
     tiny registered budget), says how long DSRL's size takes and how to resume, then runs the
     fast checks on the file."""
@@ -282,7 +282,9 @@ def test_a_fresh_machine_makes_learned_data_with_its_eta(tmp_path, monkeypatch):
     monkeypatch.setitem(tasks.TASKS, "HopperVelocity", dataclasses.replace(hop, collection=tiny))
     task = get_task("HopperVelocity")
     said = []
-    ds = load_task_dataset(task, announce=said.append)
+    capfd.readouterr()
+    ds = load_task_dataset(task, announce=said.append, progress=False)
+    assert "PPO-Lagrangian" not in capfd.readouterr().err  # --no-progress: no generation bar
     assert "generating DSRL's learned-behaviour data (8 trajectories from 800 env steps" in said[0]
     assert "rerun the same command to continue" in said[0] and "--source ppo-lagrangian" in said[0]
     assert ds.source.endswith("HopperVelocity-generated-ppolag-v2-s0-n8.hdf5")
