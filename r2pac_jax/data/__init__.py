@@ -29,7 +29,7 @@ def _generate_learned(task: TaskSpec, announce: Callable[[str], None],
              f"separately: python -m r2pac_jax.data make --task {task.name} --source "
              "ppo-lagrangian (--budget N for a smaller, recorded budget)")
     path = factory.generate_dataset(task, c.trajectories, seed=0, source="ppo-lagrangian",
-                                    progress=True if progress else None, log=announce)
+                                    progress=progress, log=announce)
     res = check_file(path, task.name, fast=True, log=announce)
     announce(f"dataset: {path} (generated); coverage checks "
              f"{'passed' if res['passed'] else 'failed: ' + ', '.join(res['failed'])} "

@@ -21,7 +21,7 @@ from __future__ import annotations
 import os
 import platform
 from pathlib import Path
-from typing import Callable, Optional
+from typing import Callable, Optional, Union
 
 import numpy as np
 
@@ -167,7 +167,8 @@ def make_card(task: TaskSpec, ds: Dataset, seed: int, trajectories: int, source:
 
 
 def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: int = 0,
-                     progress: Optional[Callable[[int], None]] = None, plot: bool = True,
+                     progress: Union[bool, Callable[[int], None], None] = None,
+                     plot: bool = True,
                      source: str = "scripted", physics: str = "auto",
                      env_steps: Optional[int] = None, force: bool = False,
                      log: Callable[[str], None] = print, **learned) -> Optional[Path]:
@@ -176,7 +177,8 @@ def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: i
     `force` discards an existing file (and a learned source's partial state) first. For the
     learned source, `env_steps` is the RL budget (default DSRL's) and `learned` passes
     `collect.generate_learned`'s options (`ppo`, `checkpoint_every`, `stop_after`, ...);
-    it returns None when stopped early by `stop_after`."""
+    it returns None when stopped early by `stop_after`. `progress`: the scripted sources call it
+    once per finished trajectory; the learned source draws its own bar when it is truthy."""
     src = _source(task, source, physics)
     n = trajectories or src["default_trajectories"]
     if n < 1:
@@ -216,9 +218,10 @@ def _generate_locked(task, src, n, seed, path, progress, plot, source, physics, 
         from r2pac_jax.data.factory.collect import generate_learned
 
         return generate_learned(task, path, n, env_steps, seed, physics, log=log,
-                                progress=learned.pop("progress", progress is not None), **learned)
+                                progress=bool(progress), **learned)
     oversample = int(src.get("oversample", 1))
-    arrays = src["generate"](n * oversample, seed, progress=progress)
+    arrays = src["generate"](n * oversample, seed,
+                             progress=progress if callable(progress) else None)
     thinning = None
     if oversample > 1:  # DSRL's density grid over (cost, return), see thinning.py
         from r2pac_jax.data.factory.thinning import select_episodes, thin_by_density
