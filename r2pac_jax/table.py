@@ -12,6 +12,12 @@ Writes DIR/table.md (`report.results_table`: safe bold, best and second-best saf
 marked, unsafe marked with a dagger, per-family averages), DIR/table.csv and DIR/table.png
 (normalised reward against cost, a panel per task). `--estimate` times one compiled block of
 every algorithm on the first task and prints the wall estimate, then stops.
+
+A table made in pieces (sessions, machines, a second directory beside a running one):
+`--merge-from SRC` first brings SRC's finished cells and its manifest's tasks into DIR (same
+preset, seeds and episodes, no task on other data; DIR's own cells win); `--table-only` runs
+nothing and writes the table from DIR's finished cells of `--algos`, for `--tasks` or every
+task in DIR's manifest.
 """
 from __future__ import annotations
 
@@ -45,7 +51,8 @@ def data_version(path: str) -> str:
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m r2pac_jax.table",
                                  description=__doc__.split("\n")[0])
-    ap.add_argument("--tasks", required=True, help="comma-separated task names")
+    ap.add_argument("--tasks", default=None, help="comma-separated task names (required "
+                    "unless --table-only)")
     ap.add_argument("--algos", default=DEFAULT_ALGOS, help=f"comma-separated (default "
                     f"{DEFAULT_ALGOS})")
     ap.add_argument("--seeds", type=int, default=3)
@@ -58,6 +65,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", required=True)
     ap.add_argument("--estimate", action="store_true", help="time one block per algorithm, "
                     "print the estimated wall, run nothing")
+    ap.add_argument("--merge-from", action="append", default=[], metavar="SRC",
+                    help="a table directory whose finished cells and tasks join --out first "
+                         "(repeatable)")
+    ap.add_argument("--table-only", action="store_true", help="train nothing: the table from "
+                    "the finished cells in --out")
     ap.add_argument("--no-progress", action="store_true")
     return ap
 
@@ -83,30 +95,95 @@ def _manifest(out: Path, args, datasets: dict) -> dict:
     from r2pac_jax.config import ConfigError
     from r2pac_jax.io import atomic_write_json
 
-    want = dict(preset=args.preset, seeds=args.seeds, episodes=args.episodes, steps=args.steps,
-                datasets=datasets)
+    want = dict(_identity(args), datasets=datasets)
     path = out / "manifest.json"
     if path.exists():
         have = json.loads(path.read_text())
-        for k in ("preset", "seeds", "episodes", "steps"):
-            if have.get(k) != want[k]:
-                raise ConfigError(f"{out} holds a table made with {k}={have.get(k)!r}, not "
-                                  f"{want[k]!r}: use another --out (a table never mixes them)")
-        for t, d in datasets.items():
-            old = have["datasets"].get(t)
-            if old is not None and (old["sha256"] != d["sha256"] or old["version"] != d["version"]):
-                raise ConfigError(f"{out} holds {t} results on {old['file']} ({old['version']}); "
-                                  f"this run would use {d['file']} ({d['version']}): use another "
-                                  "--out (a table never mixes data)")
+        _check_identity(have, args, out)
+        _check_same_data(have["datasets"], datasets, out, "this run would use")
         have["datasets"].update(datasets)
         want["datasets"] = have["datasets"]
-    versions = {d["version"] for d in want["datasets"].values()}
+    _check_one_version(want["datasets"])
+    atomic_write_json(path, want)
+    return want
+
+
+_IDENTITY = ("preset", "seeds", "episodes", "steps")
+
+
+def _identity(args) -> dict:
+    return {k: getattr(args, k) for k in _IDENTITY}
+
+
+def _check_identity(have: dict, args, where: Path) -> None:
+    from r2pac_jax.config import ConfigError
+
+    for k, v in _identity(args).items():
+        if have.get(k) != v:
+            raise ConfigError(f"{where} holds a table made with {k}={have.get(k)!r}, not "
+                              f"{v!r}: use another --out (a table never mixes them)")
+
+
+def _check_same_data(have: dict, new: dict, where: Path, verb: str) -> None:
+    from r2pac_jax.config import ConfigError
+
+    for t, d in new.items():
+        old = have.get(t)
+        if old is not None and (old["sha256"] != d["sha256"] or old["version"] != d["version"]):
+            raise ConfigError(f"{where} holds {t} results on {old['file']} ({old['version']}); "
+                              f"{verb} {d['file']} ({d['version']}): use another --out (a table "
+                              "never mixes data)")
+
+
+def _check_one_version(datasets: dict) -> None:
+    from r2pac_jax.config import ConfigError
+
+    versions = {d["version"] for d in datasets.values()}
     if len(versions) > 1:
         raise ConfigError(f"the table's tasks would mix data versions {sorted(versions)}: make "
                           "every task's data with one recipe (python -m r2pac_jax.data make "
                           "--task T --source ppo-lagrangian), or make one table per version")
-    atomic_write_json(path, want)
-    return want
+
+
+def merge_from(out: Path, src: Path, args, log) -> int:
+    """Bring SRC's finished cells (TASK/ALGO with a results.json) and its manifest's tasks into
+    OUT, where OUT lacks them; the number of cells copied. Refuses SRC or OUT of another preset,
+    seeds or episodes, and a task whose data differ between the two. An unfinished run in OUT is
+    kept (it resumes), even where SRC has that cell finished."""
+    import shutil
+
+    from r2pac_jax.config import ConfigError
+    from r2pac_jax.io import atomic_write_json
+
+    if not (src / "manifest.json").is_file():
+        raise ConfigError(f"--merge-from {src}: no manifest.json there; give a directory a "
+                          "table command wrote (its --out)")
+    theirs = json.loads((src / "manifest.json").read_text())
+    _check_identity(theirs, args, src)
+    path = out / "manifest.json"
+    ours = json.loads(path.read_text()) if path.exists() else dict(_identity(args), datasets={})
+    _check_identity(ours, args, out)
+    _check_same_data(ours["datasets"], theirs["datasets"], out, f"{src} holds them on")
+    merged = {**theirs["datasets"], **ours["datasets"]}
+    _check_one_version(merged)
+    copied = 0
+    for t in theirs["datasets"]:
+        for cell in sorted(p for p in (src / t).glob("*") if (p / "results.json").is_file()):
+            dest = out / t / cell.name
+            if dest.exists():
+                if not (dest / "results.json").exists():
+                    log(f"   {dest}: an unfinished run, kept (not replaced by {cell})")
+                continue
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            tmp = dest.with_name(f".{cell.name}.merging")
+            shutil.rmtree(tmp, ignore_errors=True)
+            shutil.copytree(cell, tmp, ignore=shutil.ignore_patterns(".lock"))
+            tmp.rename(dest)  # a cell appears whole or not at all
+            copied += 1
+    ours["datasets"] = merged
+    atomic_write_json(path, ours)
+    log(f"merged {copied} finished cell(s) from {src} into {out}")
+    return copied
 
 
 def estimate(tasks, algos, args, ds_of, log) -> float:
@@ -187,14 +264,24 @@ def main(argv=None) -> int:
     try:
         args.preset, why = resolve_preset(args.preset)
         log(why)
-        tasks = [get_task(t) for t in args.tasks.split(",") if t]
+        tasks = [get_task(t) for t in (args.tasks or "").split(",") if t]
         algos = [a for a in args.algos.split(",") if a]
-        if not tasks or not algos:
-            raise ConfigError("--tasks and --algos each need at least one name")
+        if not algos or (not tasks and not args.table_only):
+            raise ConfigError("--tasks and --algos each need at least one name (--tasks may be "
+                              "left out with --table-only: every task in --out)")
         for a in algos:
             algo_module(a)  # an unknown name is refused with the known ones
         if args.seeds < 1 or args.episodes < 1:
             raise ConfigError("--seeds and --episodes must be >= 1")
+        out = Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise ConfigError(f"--out {out} is a file, not a directory")
+        if args.merge_from or args.table_only:
+            out.mkdir(parents=True, exist_ok=True)
+        for src in args.merge_from:
+            merge_from(out, Path(src), args, log)
+        if args.table_only:
+            return _table_only(out, [t.name for t in tasks], algos, args, log)
         cfgs = {t.name: _configs(t, algos, args) for t in tasks}  # every config checked first
         loaded = {}
 
@@ -207,9 +294,6 @@ def main(argv=None) -> int:
         if args.estimate:
             estimate(tasks, algos, args, ds_of, log)
             return 0
-        out = Path(args.out)
-        if out.exists() and not out.is_dir():
-            raise ConfigError(f"--out {out} is a file, not a directory")
         out.mkdir(parents=True, exist_ok=True)
         datasets = {}
         for t in tasks:
@@ -241,7 +325,13 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     earlier = finished_cells(out, manifest, algos, skip=cells)
-    cells = {**earlier, **cells}  # the tasks asked for last, in their order
+    _write_table(out, {**earlier, **cells}, manifest, algos, args, log)  # asked-for tasks last
+    return 0
+
+
+def _write_table(out: Path, cells: dict, manifest: dict, algos, args, log) -> None:
+    from r2pac_jax.tasks import get_task
+
     families = {name: get_task(name).family for name in cells}
     versions = sorted({d["version"] for d in manifest["datasets"].values()})
     files = ", ".join(f"{t}: {d['file']}" for t, d in manifest["datasets"].items()
@@ -251,6 +341,28 @@ def main(argv=None) -> int:
     md = write_outputs(out, cells, algos, families, caption)
     log("\n" + md)
     log(f"\n{out / 'table.md'}, {out / 'table.csv'}, {out / 'table.png'}")
+
+
+def _table_only(out: Path, tasks: list, algos, args, log) -> int:
+    """--table-only: the table from OUT's finished cells; nothing is trained."""
+    from r2pac_jax.config import ConfigError
+
+    path = out / "manifest.json"
+    if not path.is_file():
+        raise ConfigError(f"--table-only: {out} holds no table (no manifest.json); run the "
+                          "table command with --tasks first, or --merge-from a table directory")
+    manifest = json.loads(path.read_text())
+    _check_identity(manifest, args, out)
+    missing = [t for t in tasks if t not in manifest["datasets"]]
+    if missing:
+        raise ConfigError(f"--table-only: {out} has no results for {', '.join(missing)} (its "
+                          f"tasks: {', '.join(manifest['datasets'])})")
+    cells = finished_cells(out, manifest, algos)
+    if tasks:
+        cells = {t: cells[t] for t in tasks if t in cells}
+    if not cells:
+        raise ConfigError(f"--table-only: no finished cell of {', '.join(algos)} in {out}")
+    _write_table(out, cells, manifest, algos, args, log)
     return 0
 
 

@@ -76,3 +76,52 @@ def test_unknown_algorithm_names_the_known_ones(tmp_path, capsys):
     assert main(["--tasks", "ReachAvoid", "--algos", "cdq", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "unknown algo 'cdq'" in err and "cpq" in err and "coptidice" in err
+
+
+def test_merge_from_joins_tables_and_table_only_trains_nothing(tmp_path, data_dir, capsys):
+    import shutil
+
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    common = ["--seeds", "2", "--preset", "quick", "--episodes", "2", "--steps", "20",
+              "--no-progress"]
+    assert main(["--tasks", "ReachAvoid", "--algos", "bc-all-mlp", "--out", str(a), *common]) == 0
+    # b: a table of another task (a copy of a's cell standing for it), as another session leaves
+    shutil.copytree(a, b)
+    man = json.loads((b / "manifest.json").read_text())
+    man["datasets"] = {"HalfCheetahVelocity": dict(man["datasets"]["ReachAvoid"], file="hc.hdf5")}
+    (b / "manifest.json").write_text(json.dumps(man))
+    shutil.move(b / "ReachAvoid", b / "HalfCheetahVelocity")
+    (b / "HalfCheetahVelocity" / "coptidice").mkdir()  # unfinished there: not copied
+    capsys.readouterr()
+    only = ["--algos", "bc-all-mlp", "--table-only", *common]
+    assert main([*only, "--out", str(c), "--merge-from", str(a), "--merge-from", str(b)]) == 0
+    out = capsys.readouterr().out
+    assert "merged 1 finished cell(s)" in out and "== " not in out  # nothing trained
+    assert sorted(json.loads((c / "manifest.json").read_text())["datasets"]) == [
+        "HalfCheetahVelocity", "ReachAvoid"]
+    assert not (c / "HalfCheetahVelocity" / "coptidice").exists()
+    md = (c / "table.md").read_text()
+    assert "| ReachAvoid |" in md and "| HalfCheetahVelocity |" in md and "hc.hdf5" in md
+    # --tasks narrows the table-only table; OUT's own cells win over SRC's
+    res = c / "ReachAvoid" / "bc-all-mlp" / "results.json"
+    mine = json.loads(res.read_text())
+    mine["normalized_reward"]["mean"] = 0.123
+    res.write_text(json.dumps(mine))
+    assert main([*only, "--out", str(c), "--tasks", "ReachAvoid", "--merge-from", str(a)]) == 0
+    md = (c / "table.md").read_text()
+    assert "0.12 ±" in md and "HalfCheetahVelocity" not in md
+    # refused: another preset, a task on other data, a SRC that is no table, an unknown task
+    capsys.readouterr()
+    assert main([*[x if x != "quick" else "paper" for x in only], "--out", str(c)]) == 2
+    assert "preset='quick'" in capsys.readouterr().err
+    man = json.loads((b / "manifest.json").read_text())
+    man["datasets"]["ReachAvoid"] = dict(man["datasets"]["HalfCheetahVelocity"], sha256="0" * 64)
+    (b / "manifest.json").write_text(json.dumps(man))
+    assert main([*only, "--out", str(c), "--merge-from", str(b)]) == 2
+    assert "never mixes data" in capsys.readouterr().err
+    assert main([*only, "--out", str(c), "--merge-from", str(tmp_path)]) == 2
+    assert "no manifest.json there" in capsys.readouterr().err
+    assert main([*only, "--out", str(c), "--tasks", "CarGoal1"]) == 2
+    assert "has no results for CarGoal1" in capsys.readouterr().err
+    assert main(["--algos", "bc-all-mlp", "--out", str(tmp_path / "d"), *common]) == 2
+    assert "--tasks and --algos" in capsys.readouterr().err

@@ -12,13 +12,15 @@
 #
 # Environment: QB_OUT (runs/quality_bar_v2), TABLE_OUT (runs/table1), ALGOS (Table 1's columns,
 # default bc-all-mlp,cpq,coptidice,r2pac: the quickest on a CPU; add bcq-lag,cdt,fisor where the
-# session has the hours: `python -m r2pac_jax.table ... --estimate`), SKIP_TABLE=1 to stop after 3.
+# session has the hours: `python -m r2pac_jax.table ... --estimate`), TABLE_COLUMNS (the committed
+# table's columns, default bc-all-mlp,cpq,coptidice,bcq-lag,r2pac), SKIP_TABLE=1 to stop after 3.
 # A killed pipeline restarts where it stopped: finished files, runs and cells are skipped.
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 QB_OUT="${QB_OUT:-runs/quality_bar_v2}"
 TABLE_OUT="${TABLE_OUT:-runs/table1}"
 ALGOS="${ALGOS:-bc-all-mlp,cpq,coptidice,r2pac}"
+TABLE_COLUMNS="${TABLE_COLUMNS:-bc-all-mlp,cpq,coptidice,bcq-lag,r2pac}"  # the committed table's
 ARCHIVE=experiments/data_factory/results_v2
 TABLE_KEEP=experiments/table1/cpu-quick  # the committed CPU table (results and configs only)
 for t in "$@"; do
@@ -44,17 +46,20 @@ for t in "$@"; do
       mkdir -p "$TABLE_OUT/$t" && cp -r "$QB_OUT/$t/$a" "$TABLE_OUT/$t/$a"
     fi
   done
-  # the committed table's cells and manifest first, so its earlier tasks keep their rows
-  mkdir -p "$TABLE_OUT" && cp -rn "$TABLE_KEEP"/. "$TABLE_OUT"/
+  # the committed table's cells and tasks join TABLE_OUT first (its own runs win), so every
+  # earlier task keeps its row
   python -m r2pac_jax.table --tasks "$t" --algos "$ALGOS" --seeds 3 --episodes 20 \
-    --out "$TABLE_OUT" --no-progress || echo "!! $t: table failed"
+    --out "$TABLE_OUT" --merge-from "$TABLE_KEEP" --no-progress || echo "!! $t: table failed"
   # back into the committed table, finished cells only (a failed or partial table keeps the
-  # cells it finished): each cell's results and config, the manifest, the table
-  (cd "$TABLE_OUT" && find . -maxdepth 3 \( -name results.json -o -path './manifest.json' \
-     -o -path './table.*' \) -print) | while read -r x; do
+  # cells it finished): each cell's results and config, and the manifest
+  (cd "$TABLE_OUT" && find . -maxdepth 3 \( -name results.json -o -path './manifest.json' \) \
+     -print) | while read -r x; do
     d=$(dirname "$x")
     mkdir -p "$TABLE_KEEP/$d" && cp "$TABLE_OUT/$x" "$TABLE_KEEP/$x"
     [ "$(basename "$x")" = results.json ] && cp "$TABLE_OUT/$d/config.json" "$TABLE_KEEP/$d/"
   done
+  # the committed table, every column that has cells (bcq-lag's made apart included)
+  python -m r2pac_jax.table --table-only --algos "$TABLE_COLUMNS" --seeds 3 --episodes 20 \
+    --out "$TABLE_KEEP" --no-progress | tail -2 || echo "!! $t: table-only failed"
 done
 echo "== pipeline done $(date -u +%FT%TZ)"
