@@ -92,7 +92,6 @@ def _configs(task, algos, args):
 
 def _manifest(out: Path, args, datasets: dict) -> dict:
     """The identity of the table in DIR; refuse a DIR of another preset, seeds or data."""
-    from r2pac_jax.config import ConfigError
     from r2pac_jax.io import atomic_write_json
 
     want = dict(_identity(args), datasets=datasets)
@@ -153,7 +152,7 @@ def merge_from(out: Path, src: Path, args, log) -> int:
     import shutil
 
     from r2pac_jax.config import ConfigError
-    from r2pac_jax.io import atomic_write_json
+    from r2pac_jax.io import atomic_write_json, writing
 
     if not (src / "manifest.json").is_file():
         raise ConfigError(f"--merge-from {src}: no manifest.json there; give a directory a "
@@ -174,11 +173,15 @@ def merge_from(out: Path, src: Path, args, log) -> int:
                 if not (dest / "results.json").exists():
                     log(f"   {dest}: an unfinished run, kept (not replaced by {cell})")
                 continue
-            dest.parent.mkdir(parents=True, exist_ok=True)
             tmp = dest.with_name(f".{cell.name}.merging")
-            shutil.rmtree(tmp, ignore_errors=True)
-            shutil.copytree(cell, tmp, ignore=shutil.ignore_patterns(".lock"))
-            tmp.rename(dest)  # a cell appears whole or not at all
+            with writing(dest, "a merged cell", f"{cell} is untouched; rerun to merge it"):
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                shutil.rmtree(tmp, ignore_errors=True)
+                try:
+                    shutil.copytree(cell, tmp, ignore=shutil.ignore_patterns(".lock"))
+                    tmp.rename(dest)  # a cell appears whole or not at all
+                finally:
+                    shutil.rmtree(tmp, ignore_errors=True)
             copied += 1
     ours["datasets"] = merged
     atomic_write_json(path, ours)

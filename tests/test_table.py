@@ -125,3 +125,32 @@ def test_merge_from_joins_tables_and_table_only_trains_nothing(tmp_path, data_di
     assert "has no results for CarGoal1" in capsys.readouterr().err
     assert main(["--algos", "bc-all-mlp", "--out", str(tmp_path / "d"), *common]) == 2
     assert "--tasks and --algos" in capsys.readouterr().err
+
+
+def test_merge_on_a_full_disk_says_so_and_leaves_no_partial_cell(tmp_path, monkeypatch, capsys):
+    """ENOSPC while a cell is copied: one line naming the cell, nothing half-copied left."""
+    import errno
+    import shutil
+
+    src = tmp_path / "src"
+    cell = src / "ReachAvoid" / "bc-all-mlp"
+    cell.mkdir(parents=True)
+    (cell / "results.json").write_text(json.dumps(_r(0.5, 0.1)))
+    (cell / "config.json").write_text("{}")
+    (src / "manifest.json").write_text(json.dumps(dict(
+        preset="quick", seeds=2, episodes=2, steps=None,
+        datasets={"ReachAvoid": dict(file="ra.hdf5", version="scripted-v1", sha256="1" * 64)})))
+
+    def full(a, b, **kw):  # the disk fills after the first file of the copy
+        b.mkdir()
+        (b / "results.json").write_text("{")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(shutil, "copytree", full)
+    out = tmp_path / "out"
+    assert main(["--algos", "bc-all-mlp", "--table-only", "--seeds", "2", "--preset", "quick",
+                 "--episodes", "2", "--out", str(out), "--merge-from", str(src)]) == 2
+    err = capsys.readouterr().err
+    assert "no space left on the disk" in err and str(out / "ReachAvoid" / "bc-all-mlp") in err
+    assert len(err.strip().splitlines()) == 1
+    assert list((out / "ReachAvoid").iterdir()) == []  # no cell, no temporary copy
