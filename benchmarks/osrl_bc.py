@@ -176,7 +176,8 @@ def main(argv=None) -> int:
     from r2pac_jax.tasks import get_task
 
     task = get_task(args.task)
-    dataset = args.dataset or factory.find_cached(task) or factory.generate_dataset(task)
+    dataset = args.dataset or factory.find_cached(task) or factory.generate_dataset(
+        task, source="scripted")
     ds = load_task_dataset(task, str(dataset), announce=print)
     file = ds.source
     out = Path(args.out) / task.name

@@ -1,4 +1,6 @@
 """The data factory's sources for the environment tasks (navigation.py, velocity.py)."""
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -124,9 +126,11 @@ def test_data_cli_unknown_task_and_unwritable_cache(tmp_path, monkeypatch, capsy
     monkeypatch.undo()
     assert main(["make", "--task", "CarRun", "--source", "scripted"]) == 2  # learned only
     assert "no scripted data source" in capsys.readouterr().err
-    # without --source: the scripted controllers where a task has them, else the learned recipe
-    assert factory.default_source(registry.get_task("CarGoal1")) == "scripted"
+    # without --source: the learned recipe everywhere but the demonstration task
+    assert factory.default_source(registry.get_task("CarGoal1")) == "ppo-lagrangian"
+    assert factory.default_source(registry.get_task("HopperVelocity")) == "ppo-lagrangian"
     assert factory.default_source(registry.get_task("CarRun")) == "ppo-lagrangian"
+    assert factory.default_source(registry.get_task("ReachAvoid")) == "scripted"
     blocker = tmp_path / "file"
     blocker.write_text("")
     monkeypatch.setenv("R2PAC_DATA_DIR", str(blocker / "sub"))
@@ -153,7 +157,7 @@ def test_every_navigation_source_makes_valid_data(name):
 @pytest.mark.slow
 def test_generated_navigation_dataset_is_carded_and_thinned(data_dir):
     task = get_task("PointGoal1")
-    path = factory.generate_dataset(task, 3, seed=1)
+    path = factory.generate_dataset(task, 3, seed=1, source="scripted")
     card = __import__("json").loads(factory.card_path(path).read_text())
     assert card["trajectories"] == 3 and card["thinning"]["generated"] == 3 * nav.OVERSAMPLE
     assert path.with_suffix(".png").exists()
@@ -198,3 +202,24 @@ def test_gait_speed_level_raises_speed_and_cost():
     costs = out["costs"].reshape(2, 150)
     assert costs[0].sum() == 0 and costs[1, 50:].sum() > 20, costs.sum(1)
     assert rewards[1].sum() > rewards[0].sum() + 100
+
+
+def test_scripted_data_only_when_named_and_carded_with_their_failed_checks(data_dir, capsys):
+    """Data issue, item 6: `data make` never picks the scripted controllers by itself; named,
+    they warn, and the card lists the checks the file fails (coverage, measured on the file)
+    and what the v1 quality bar measured of their imitability."""
+    import json
+
+    from r2pac_jax.data.__main__ import main
+
+    assert main(["make", "--task", "HalfCheetahVelocity", "--source", "scripted",
+                 "--trajectories", "2"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: scripted controllers" in err and "data v1" in err and "0.78" in err
+    path = factory.dataset_path(get_task("HalfCheetahVelocity"), 0, 2, "scripted")
+    card = json.loads(factory.card_path(path).read_text())
+    checks = json.loads(Path(f"{path}.checks.json").read_text())
+    assert card["data_version"] == 1 and "not reliably imitable" in card["known_limits"]
+    assert card["checks"]["failed"] == checks["failed"] and checks["fast"]
+    # the demonstration task's scripted data carry no such warning
+    assert factory.scripted_limits(get_task("ReachAvoid")) is None

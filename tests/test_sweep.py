@@ -172,7 +172,8 @@ def test_sweep_on_a_mujoco_task_via_task_override(tmp_path, data_dir):
     from r2pac_jax.data.factory import generate_dataset
     from r2pac_jax.tasks import get_task
 
-    generate_dataset(get_task("HopperVelocity"), trajectories=10, seed=0, plot=False)
+    generate_dataset(get_task("HopperVelocity"), trajectories=10, seed=0, plot=False,
+                     source="scripted")
     body = ('task = "ReachAvoid"\nseeds = 1\neval_episodes = 2\npreset = "quick"\n' + TINY_CONFIG
             + "\n[grid]\nquantile_alpha = [0.5, 0.9]\nchunk_len = [1, 3]\n")
     p = _write(tmp_path, body)

@@ -14,7 +14,8 @@ skipped with a note), passed with --dataset, and the two one-step MLP cloners as
 Each (task, algo) is one `python -m r2pac_jax.train` run in OUT/TASK/ALGO; a finished run
 (results.json present) is skipped, an interrupted one resumes from its checkpoint, so the
 experiment can be stopped and restarted task by task. Data come from the cache
-(`python -m r2pac_jax.data make --task TASK`), generated on first use. The table (paper format,
+(v1: `python -m r2pac_jax.data make --task TASK --source scripted`; v2: the learned file at
+DSRL's size), generated on first use. The table (paper format,
 r2pac / bc-all / bc-safe per task, with the verdict) goes to OUT/quality_bar.md; the command,
 machine and date belong beside it in experiments/data_factory/QUALITY_BAR.md.
 
@@ -267,7 +268,7 @@ def main() -> int:
                 from r2pac_jax.tasks import get_task
 
                 dataset = factory.find_cached(get_task(task)) or factory.generate_dataset(
-                    get_task(task))
+                    get_task(task), source="scripted")
             if args.data == "v2":
                 dataset = learned_file(task)
                 if dataset is None:

@@ -8,7 +8,7 @@ export R2PAC_DATA_DIR
 for task in "$@"; do
   before=$(cut -d' ' -f1-3 /proc/loadavg)
   start=$(date +%s.%N)
-  python -m r2pac_jax.data make --task "$task" > "$R2PAC_DATA_DIR/$task.log" 2>&1
+  python -m r2pac_jax.data make --task "$task" --source scripted > "$R2PAC_DATA_DIR/$task.log" 2>&1
   rc=$?
   end=$(date +%s.%N)
   after=$(cut -d' ' -f1-3 /proc/loadavg)

@@ -64,13 +64,13 @@ def load_task_dataset(task: TaskSpec, dataset: Optional[str] = None,
     path = factory.find_cached(task)
     if path is not None:
         announce(f"dataset: {path} (generated earlier, see its .json card)")
-        if task.collection is not None and task.family != "demo":
+        if factory.learned_by_default(task):
             announce(f"warning: {path.name} is scripted (data v1) data, whose safe trajectories "
                      "an observation-based learner cannot imitate (experiments/data_factory/"
                      "QUALITY_BAR.md); the learned data: python -m r2pac_jax.data make --task "
                      f"{task.name} --source ppo-lagrangian")
         return load_dsrl(path, **kw)
-    if task.collection is not None and task.family != "demo":
+    if factory.learned_by_default(task):
         return _generate_learned(task, announce, progress)
     if not factory.has_source(task):
         raise DatasetError(
@@ -85,6 +85,7 @@ def load_task_dataset(task: TaskSpec, dataset: Optional[str] = None,
 
     with tqdm(total=n, unit="traj", desc=f"{task.name} data", dynamic_ncols=True,
               disable=not progress) as bar:
-        path = factory.generate_dataset(task, n, seed=0, progress=bar.update)
+        path = factory.generate_dataset(task, n, seed=0, progress=bar.update,
+                                        source="scripted")
     announce(f"dataset: {path} (generated)")
     return load_dsrl(path, **kw)

@@ -20,10 +20,11 @@ def main(argv=None) -> int:
                          "ppo-lagrangian)")
     mk.add_argument("--seed", type=int, default=0)
     mk.add_argument("--source", default=None, choices=SOURCE_KINDS,
-                    help="scripted (each task's controllers, data v1; the default where a task "
-                         "has them) | ppo-lagrangian (DSRL's recipe: an observation-based "
-                         "Lagrangian agent under DSRL's cost schedule, data v2; resumable; the "
-                         "default of the tasks without scripted controllers, e.g. BallRun)")
+                    help="ppo-lagrangian (DSRL's recipe: an observation-based Lagrangian agent "
+                         "under DSRL's cost schedule, data v2; resumable; the default of every "
+                         "task but ReachAvoid) | scripted (the controllers on simulator state, "
+                         "data v1, minutes; only when named: their safe trajectories cannot be "
+                         "imitated from observations, and the card lists the checks they fail)")
     mk.add_argument("--budget", type=int, default=None,
                     help="ppo-lagrangian: RL budget in env steps (default DSRL's, e.g. 22M for "
                          "CarGoal2); the schedule scales with it")
@@ -75,6 +76,9 @@ def main(argv=None) -> int:
                                             checkpoint_every=args.checkpoint_every,
                                             progress=True)
         else:
+            limits = factory.scripted_limits(task)
+            if limits is not None:
+                print(f"warning: {limits}", file=sys.stderr)
             path = factory.dataset_path(task, args.seed, n, args.source)
             if not args.force and path.exists() and factory.card_path(path).exists():
                 print(f"{path} exists (card {factory.card_path(path)}); --force makes it again")

@@ -4,16 +4,20 @@ A source is a dict: `name`, `generate(n_trajectories, seed, progress) -> DSRL ar
 `default_trajectories`, and optionally `oversample` (generate that many times more
 trajectories, then thin them to the requested number with DSRL's density grid).
 
-Two kinds of source: `scripted` (each task's default today, the controllers of navigation.py,
-velocity.py and reach_avoid.py: data version 1) and `ppo-lagrangian` (DSRL's recipe: an
-observation-based PPO-Lagrangian agent under DSRL's cost schedule, trajectories kept along
-training, collect.py: data version 2; C MuJoCo on a CPU, MJX or pure JAX, resumable).
+Two kinds of source: `ppo-lagrangian` (DSRL's recipe: an observation-based PPO-Lagrangian agent
+under DSRL's cost schedule, trajectories kept along training, collect.py: data version 2; C
+MuJoCo on a CPU, MJX, pybullet or pure JAX, resumable), the default of every task with an
+environment except the ReachAvoid demonstration; and `scripted` (the controllers of
+navigation.py, velocity.py and reach_avoid.py: data version 1), only when named, since their
+safe trajectories cannot be imitated from observations (QUALITY_BAR.md). A scripted file's card
+lists the coverage checks it fails, measured on the file, and what the v1 quality bar measured
+of its imitability.
 
 Files go to `$R2PAC_DATA_DIR` (default `~/.cache/r2pac_jax/datasets`) as
 `{Task}-generated-s{seed}-n{trajectories}.hdf5` (scripted v1) or
 `{Task}-generated-ppolag-v2-s{seed}-n{trajectories}[-b{env_steps}].hdf5` (learned; `-b` when
-the RL budget differs from DSRL's) with a JSON card beside them; `train` picks up the scripted
-ones by itself, a PPO-Lagrangian one is passed with `--dataset`. The HDF5 file is written
+the RL budget differs from DSRL's) with a JSON card beside them; `train` prefers the learned
+files and warns, naming the file, when it falls back to a scripted one. The HDF5 file is written
 atomically and the card last, so a dataset counts as present only when both exist.
 """
 from __future__ import annotations
@@ -76,10 +80,45 @@ def has_source(task: TaskSpec) -> bool:
     return task.name in _sources() or (task.collection is not None and task.has_env)
 
 
+def learned_by_default(task: TaskSpec) -> bool:
+    """Whether a task's data come from the learned recipe unless `scripted` is named: every
+    task with a recipe except the demonstration task (ReachAvoid, the paper's Figure 1)."""
+    return task.collection is not None and task.family != "demo"
+
+
 def default_source(task: TaskSpec) -> str:
-    """`data make`'s source when none is named: the scripted controllers where a task has them
-    (today's default), else the learned recipe (the Bullet tasks)."""
-    return "scripted" if task.name in _sources() or not has_source(task) else "ppo-lagrangian"
+    """`data make`'s (and `generate_dataset`'s) source when none is named: the learned recipe
+    (data v2) for every task with one but the demonstration task; scripted controllers (data
+    v1) never by default elsewhere (data issue, item 6)."""
+    return "ppo-lagrangian" if learned_by_default(task) else "scripted"
+
+
+# What the quality bar measured on each task's default scripted (v1) file: bc-safe's normalised
+# cost, mean over 3 seeds (experiments/data_factory/results/quality_bar.md, 2026-11/12, quick
+# preset). >= 1: cloning the safe trajectories gave an unsafe policy, the imitability failure
+# that retired these sources as a default.
+V1_BC_SAFE_COST = {
+    "CarButton1": 13.29, "CarButton2": 15.38, "CarPush1": 2.36, "CarPush2": 2.81,
+    "CarGoal1": 8.51, "CarGoal2": 13.23, "PointGoal1": 6.67, "PointGoal2": 10.42,
+    "PointButton1": 5.79, "PointButton2": 11.60, "PointPush1": 4.97, "PointPush2": 2.78,
+    "AntVelocity": 0.14, "HalfCheetahVelocity": 0.78, "SwimmerVelocity": 4.70,
+    "HopperVelocity": 0.60, "Walker2dVelocity": 0.76,
+}
+
+
+def scripted_limits(task: TaskSpec) -> Optional[str]:
+    """A scripted (v1) file's known limits for its card and a warning; None for the demo."""
+    if not learned_by_default(task):
+        return None
+    cost = V1_BC_SAFE_COST.get(task.name)
+    measured = ("" if cost is None else
+                f"; on the default v1 file the quality bar's bc-safe scored normalised cost "
+                f"{cost:.2f} ({'unsafe' if cost >= 1 else 'safe'}; "
+                "experiments/data_factory/QUALITY_BAR.md)")
+    return (f"scripted controllers on simulator state (data v1): their safe trajectories are "
+            f"not reliably imitable from observations{measured}. The imitability checks were not "
+            f"run at generation (python -m r2pac_jax.data check FILE runs them); DSRL's recipe: "
+            f"python -m r2pac_jax.data make --task {task.name}")
 
 
 def cache_dir() -> Path:
@@ -169,16 +208,19 @@ def make_card(task: TaskSpec, ds: Dataset, seed: int, trajectories: int, source:
 def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: int = 0,
                      progress: Union[bool, Callable[[int], None], None] = None,
                      plot: bool = True,
-                     source: str = "scripted", physics: str = "auto",
+                     source: Optional[str] = None, physics: str = "auto",
                      env_steps: Optional[int] = None, force: bool = False,
                      log: Callable[[str], None] = print, **learned) -> Optional[Path]:
     """Make (or reuse) the dataset file for (task, seed, trajectories, source); its path.
+    `source` None is `default_source(task)` (the learned recipe but for the demo task).
 
     `force` discards an existing file (and a learned source's partial state) first. For the
     learned source, `env_steps` is the RL budget (default DSRL's) and `learned` passes
     `collect.generate_learned`'s options (`ppo`, `checkpoint_every`, `stop_after`, ...);
     it returns None when stopped early by `stop_after`. `progress`: the scripted sources call it
     once per finished trajectory; the learned source draws its own bar when it is truthy."""
+    if source is None:
+        source = default_source(task)
     src = _source(task, source, physics)
     n = trajectories or src["default_trajectories"]
     if n < 1:
@@ -236,6 +278,13 @@ def _generate_locked(task, src, n, seed, path, progress, plot, source, physics, 
     card["thinning"] = thinning
     write_dsrl(path, ds, attrs={"task": task.name, "generated": True, "seed": seed,
                                 "source": source})
+    limits = scripted_limits(task)
+    if limits is not None:  # the card lists the checks the file fails (coverage, measured here)
+        from r2pac_jax.data.checks import check_file
+
+        res = check_file(path, task.name, fast=True, log=log)
+        card.update(data_version=1, known_limits=limits,
+                    checks=dict(fast=True, failed=res["failed"], file=f"{path}.checks.json"))
     if plot:
         from r2pac_jax.report import plot_composition
 
