@@ -134,6 +134,28 @@ def _check_same_data(have: dict, new: dict, where: Path, verb: str) -> None:
                               "never mixes data)")
 
 
+def _check_pinned_present(out: Path, tasks) -> None:
+    """A task whose data `out` already pins must find that very file here before anything is
+    loaded: a missing one would otherwise be generated anew (hours for the learned data), and
+    the new file, made elsewhere or by other code, may not be the pinned bytes."""
+    from r2pac_jax.config import ConfigError
+    from r2pac_jax.data import factory
+    from r2pac_jax.data.dsrl import dsrl_dirs
+
+    path = out / "manifest.json"
+    if not path.exists():
+        return
+    pinned = json.loads(path.read_text()).get("datasets", {})
+    where = [factory.cache_dir(), *dsrl_dirs()]
+    for t in tasks:
+        d = pinned.get(t.name)
+        if d is not None and not any((w / d["file"]).exists() for w in where):
+            raise ConfigError(
+                f"{out} pins {t.name}'s data to {d['file']} (sha256 {d['sha256'][:12]}...), which "
+                f"is not in {' or '.join(map(str, where))}: copy that file there, or use another "
+                "--out (a table never mixes data, and a file made anew may differ)")
+
+
 def _check_one_version(datasets: dict) -> None:
     from r2pac_jax.config import ConfigError
 
@@ -286,6 +308,7 @@ def main(argv=None) -> int:
         if args.table_only:
             return _table_only(out, [t.name for t in tasks], algos, args, log)
         cfgs = {t.name: _configs(t, algos, args) for t in tasks}  # every config checked first
+        _check_pinned_present(out, tasks)
         loaded = {}
 
         def ds_of(task):

@@ -154,3 +154,19 @@ def test_merge_on_a_full_disk_says_so_and_leaves_no_partial_cell(tmp_path, monke
     assert "no space left on the disk" in err and str(out / "ReachAvoid" / "bc-all-mlp") in err
     assert len(err.strip().splitlines()) == 1
     assert list((out / "ReachAvoid").iterdir()) == []  # no cell, no temporary copy
+
+
+def test_a_pinned_file_missing_here_is_refused_before_any_data_is_made(tmp_path, data_dir, capsys):
+    """--out pins a task's file that this machine lacks: one line naming the file and the fix,
+    and nothing generated (the learned data would take hours and might differ)."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "manifest.json").write_text(json.dumps(dict(
+        preset="quick", seeds=2, episodes=2, steps=None,
+        datasets={"ReachAvoid": dict(file="gone.hdf5", version="scripted-v1", sha256="ab" * 32)})))
+    assert main(["--tasks", "ReachAvoid", "--algos", "bc-all-mlp", "--seeds", "2", "--preset",
+                 "quick", "--episodes", "2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "pins ReachAvoid's data to gone.hdf5" in err and "copy that file there" in err
+    gen = data_dir / "gen"
+    assert not gen.exists() or not any(gen.iterdir())  # no dataset was made
