@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # One task's whole v2 chain, each step resumable, so a session can start it first and leave it:
 #   1. the learned-behaviour file at DSRL's size and its data checks (make_learned.sh);
-#   2. the file's card, plots and checks copied into results_v2/TASK (committed);
+#   2. the file's card, plots, checks and gzipped training log copied into results_v2/TASK
+#      (committed);
 #   3. the quality bar v2 (quality_bar.py --data v2, archived into results_v2) and its report;
 #   4. Table 1's cells for ALGOS (python -m r2pac_jax.table) in TABLE_OUT, the quality bar's
 #      r2pac and bc-all-mlp runs reused (same configuration, seeds and file: the table checks
@@ -35,6 +36,9 @@ for t in "$@"; do
   for x in "$f.checks.json" "$stem.json" "$stem.png" "$stem.training.png"; do
     [ -f "$x" ] && cp "$x" "$ARCHIVE/$t/"
   done
+  # the training log (return, cost, limit, multiplier per update), compressed: a later machine
+  # can check that it regenerates the same updates before spending hours on a whole file
+  [ -f "$stem.log.jsonl" ] && gzip -9nc "$stem.log.jsonl" > "$ARCHIVE/$t/$(basename "$stem").log.jsonl.gz"
   echo "== $t: quality bar $(date -u +%FT%TZ)"
   python experiments/data_factory/quality_bar.py --tasks "$t" --data v2 --out "$QB_OUT" \
     --archive "$ARCHIVE" || { echo "!! $t: quality bar failed"; continue; }
