@@ -224,6 +224,7 @@ def evaluate_run(run_dir, episodes: int = 20, selection: Optional[str] = None,
     if changes:
         cfg = cfg.replace(**changes)
     task = get_task(cfg.task)
+    task.check_physics(physics)
     agent = make_agent(cfg, task.obs_dim, task.act_dim)
     from r2pac_jax.policy import restore_policy_params
 

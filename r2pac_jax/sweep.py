@@ -233,8 +233,14 @@ def check_data(sweep: Sweep) -> None:
     from r2pac_jax.data.dsrl import find_dsrl_file
     from r2pac_jax.tasks import get_task
 
+    from r2pac_jax.tasks import UnknownPhysicsError
+
     for name in sorted({c.task for c in sweep.cells}):
         task = get_task(name)
+        try:
+            task.check_physics(sweep.physics)
+        except UnknownPhysicsError as e:
+            raise SweepError(f"physics = {sweep.physics!r} in the sweep file: {e}") from e
         if sweep.dataset:
             from r2pac_jax.data.dsrl import load_dsrl
 

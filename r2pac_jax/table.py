@@ -290,6 +290,8 @@ def main(argv=None) -> int:
         args.preset, why = resolve_preset(args.preset)
         log(why)
         tasks = [get_task(t) for t in (args.tasks or "").split(",") if t]
+        for t in tasks:
+            t.check_physics(args.physics)
         algos = [a for a in args.algos.split(",") if a]
         if not algos or (not tasks and not args.table_only):
             raise ConfigError("--tasks and --algos each need at least one name (--tasks may be "

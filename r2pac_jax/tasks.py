@@ -21,6 +21,15 @@ class EnvUnavailableError(RuntimeError):
     """The task is registered (constants, data) but has no environment on this install."""
 
 
+class UnknownPhysicsError(EnvUnavailableError):
+    """`--physics` names no simulator of the task (checked before any data or training)."""
+
+
+# the simulators (`--physics` values) each family's environments accept
+PHYSICS = {"demo": ("auto", "jax"), "navigation": ("auto", "mujoco", "mjx"),
+           "velocity": ("auto", "mujoco", "mjx"), "bullet": ("auto", "bullet", "mujoco", "mjx")}
+
+
 @dataclasses.dataclass(frozen=True)
 class CollectionSpec:
     """How DSRL collected a task's data (scripts/train_trpol_v0.py, dsrl/infos.py): a Lagrangian
@@ -76,6 +85,15 @@ class TaskSpec:
     @property
     def has_env(self) -> bool:
         return self.env_factory is not None
+
+    def check_physics(self, physics: str) -> None:
+        """Refuse a `--physics` value the task's environments do not accept, naming those that
+        they do, before anything is generated or trained."""
+        choices = PHYSICS.get(self.family, ("auto",))
+        if physics not in choices:
+            raise UnknownPhysicsError(
+                f"--physics {physics!r}: not a simulator of {self.name}; choose one of "
+                f"{', '.join(choices)}")
 
     def make_env(self, physics: str = "auto", **kwargs):
         """Build the task's environment (`reset(key)` / `step(state, action)`, see envs/base.py)."""

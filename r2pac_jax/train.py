@@ -178,6 +178,7 @@ def main(argv=None) -> int:
             raise ConfigError(f"--set {', '.join(unknown_main)}: not a config key of {args.algo} "
                               f"(its keys: {', '.join(sorted(field_types(args.algo)))})")
         cfgs = {a: plan_algo(task, a, args, sets, a == args.algo, log) for a in algos}
+        task.check_physics(args.physics)
         if not task.has_env and args.eval_episodes is None:
             log(f"note: {task.name} has no environment in this install; training without "
                 "evaluation")

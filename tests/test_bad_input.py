@@ -68,13 +68,29 @@ CASES = [
     # sweep
     ("sweep", ["{sweep_not_hdf5}"], 2, "cannot be read as HDF5"),
     ("sweep", ["{sweep_switch}"], 2, "reward_penalty is an algorithm switch"),
+    ("sweep", ["{sweep_physics}"], 2,
+     "physics = 'mjx' in the sweep file: --physics 'mjx': not a simulator of ReachAvoid"),
     ("sweep", ["{t}/none.toml"], 2, "no such sweep file"),
     # data
     ("data", ["make", "--task", "CarGoal2", "--source", "ppo-lagrangian", "--budget", "0"], 2,
-     "--budget and --trajectories must be >= 1"),
+     "--budget must be >= 1, got 0"),
     ("data", ["make", "--task", "CarRun", "--source", "scripted"], 2,
      "task CarRun has no scripted data source"),
     ("data", ["check", "{f}"], 2, "does not say its task"),
+    ("data", ["check", "{t}/missing.hdf5"], 2, "missing.hdf5: no such file"),
+    ("data", ["make", "--task", "CarGoal2", "--trajectories", "0"], 2,
+     "--trajectories must be >= 1, got 0"),
+    ("data", ["make", "--task", "CarGoal2", "--checkpoint-every", "0"], 2,
+     "--checkpoint-every must be >= 1, got 0"),
+    ("data", ["make", "--task", "HopperVelocity", "--physics", "warp"], 2,
+     "--physics 'warp': not a simulator of HopperVelocity; choose one of auto, mujoco, mjx"),
+    # --physics is checked before any data are made or loaded (HopperVelocity has none here)
+    ("train", ["--task", "HopperVelocity", "--physics", "warp", "--out", "{t}/h"], 2,
+     "not a simulator of HopperVelocity"),
+    ("train", T + ["--physics", "bullet"], 2,
+     "--physics 'bullet': not a simulator of ReachAvoid; choose one of auto, jax"),
+    ("table", ["--tasks", "BallRun", "--algos", "cpq", "--physics", "jax", "--out", "{t}/tb"], 2,
+     "not a simulator of BallRun; choose one of auto, bullet, mujoco, mjx"),
 ]
 
 
@@ -82,7 +98,8 @@ def _main(cli):
     import importlib
 
     mod = {"train": "r2pac_jax.train", "evaluate": "r2pac_jax.evaluate",
-           "sweep": "r2pac_jax.sweep", "data": "r2pac_jax.data.__main__"}[cli]
+           "sweep": "r2pac_jax.sweep", "data": "r2pac_jax.data.__main__",
+           "table": "r2pac_jax.table"}[cli]
     return importlib.import_module(mod).main
 
 
@@ -116,8 +133,11 @@ def places(tmp_path_factory, reach_avoid_data):
                               'quantile_alpha = [0.5, 0.9]\n')
     sweep_switch = t / "s2.toml"
     sweep_switch.write_text('task = "ReachAvoid"\n[config]\nreward_penalty = false\n')
+    sweep_physics = t / "s3.toml"
+    sweep_physics.write_text('task = "ReachAvoid"\nphysics = "mjx"\n[grid]\nchunk_len = [1, 2]\n')
     return dict(t=t, d=d, f=f, run=run, killed=killed, damaged=damaged, unsafe=unsafe,
-                sweep_not_hdf5=sweep_not_hdf5, sweep_switch=sweep_switch)
+                sweep_not_hdf5=sweep_not_hdf5, sweep_switch=sweep_switch,
+                sweep_physics=sweep_physics)
 
 
 def _fill(s, places):

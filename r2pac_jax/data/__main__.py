@@ -52,10 +52,15 @@ def main(argv=None) -> int:
     from r2pac_jax.data import factory
     from r2pac_jax.data.dsrl import DatasetError
     from r2pac_jax.io import DirectoryBusy, WriteError
-    from r2pac_jax.tasks import UnknownTaskError, get_task
+    from r2pac_jax.tasks import EnvUnavailableError, UnknownTaskError, get_task
 
     try:
         task = get_task(args.task)
+        task.check_physics(args.physics)
+        for key in ("trajectories", "budget", "num_envs", "checkpoint_every"):
+            value = getattr(args, key)
+            if value is not None and value < 1:  # refused before any file or lock is made
+                raise DatasetError(f"--{key.replace('_', '-')} must be >= 1, got {value}")
         if args.source is None:
             args.source = factory.default_source(task)
         n = args.trajectories or (task.collection.trajectories
@@ -87,7 +92,7 @@ def main(argv=None) -> int:
                 path = factory.generate_dataset(task, n, args.seed, progress=bar.update,
                                                 source=args.source, physics=args.physics,
                                                 force=args.force)
-    except (UnknownTaskError, DatasetError, DirectoryBusy, WriteError) as e:
+    except (UnknownTaskError, EnvUnavailableError, DatasetError, DirectoryBusy, WriteError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     print(f"wrote {path} in {time.time() - t0:.1f} s; card {factory.card_path(path)}; "

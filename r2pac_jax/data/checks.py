@@ -136,6 +136,9 @@ def check_file(path, task_name: Optional[str] = None, fast: bool = False,
     from r2pac_jax.io import atomic_write_json
 
     path = Path(path).expanduser()
+    if not path.is_file():
+        raise DatasetError(f"{path}: no such file" + (" (a directory)" if path.is_dir() else "")
+                           + ". Fix: pass the dataset's .hdf5 file")
     name = task_name or file_task(path)
     if name is None:
         raise DatasetError(f"{path}: the file does not say its task; pass --task")
