@@ -303,7 +303,7 @@ def main(argv=None) -> int:
         out = Path(args.out)
         if out.exists() and not out.is_dir():
             raise ConfigError(f"--out {out} is a file, not a directory")
-        if args.merge_from or args.table_only:
+        if args.merge_from:  # --table-only alone reads an existing table and creates nothing
             out.mkdir(parents=True, exist_ok=True)
         for src in args.merge_from:
             merge_from(out, Path(src), args, log)

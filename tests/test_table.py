@@ -125,6 +125,8 @@ def test_merge_from_joins_tables_and_table_only_trains_nothing(tmp_path, data_di
     assert "has no results for CarGoal1" in capsys.readouterr().err
     assert main(["--algos", "bc-all-mlp", "--out", str(tmp_path / "d"), *common]) == 2
     assert "--tasks and --algos" in capsys.readouterr().err
+    assert main([*only, "--out", str(tmp_path / "e")]) == 2  # no table there: none is created
+    assert "holds no table" in capsys.readouterr().err and not (tmp_path / "e").exists()
 
 
 def test_merge_on_a_full_disk_says_so_and_leaves_no_partial_cell(tmp_path, monkeypatch, capsys):
