@@ -212,7 +212,8 @@ def test_data_cli_errors(tmp_path, monkeypatch, capsys):
     assert "no data source for task 'CarRun'" in capsys.readouterr().err
     assert main(["make", "--task", "CarGoal2", "--source", "ppo-lagrangian", "--budget", "0"]) \
         == 2
-    assert "--budget and --trajectories must be >= 1" in capsys.readouterr().err
+    assert "--budget must be >= 1, got 0" in capsys.readouterr().err
+    assert not list(tmp_path.glob("CarGoal2-*"))  # refused before any lock or partial state
 
 
 @pytest.mark.slow
