@@ -231,9 +231,7 @@ def check_data(sweep: Sweep) -> None:
     """Every task of the sweep has data (or a generator) before anything runs."""
     from r2pac_jax.data import factory
     from r2pac_jax.data.dsrl import find_dsrl_file
-    from r2pac_jax.tasks import get_task
-
-    from r2pac_jax.tasks import UnknownPhysicsError
+    from r2pac_jax.tasks import UnknownPhysicsError, get_task
 
     for name in sorted({c.task for c in sweep.cells}):
         task = get_task(name)
