@@ -169,6 +169,10 @@ def main(argv=None) -> int:
             algo_module(a)  # an unknown name is refused with the known ones
         if args.resume and not args.out:
             raise ConfigError("--resume needs --out DIR (the run to continue)")
+        if args.seed_offset < 0:
+            # JAX folds a negative seed into uint32, so seed -1 would silently be seed 2**32 - 1
+            raise ConfigError(f"--seed-offset {args.seed_offset}: seeds are integers >= 0; "
+                              "pass --seed-offset 0 or more")
         out = Path(args.out or f"runs/{task.name}-{args.algo}-{time.strftime('%Y%m%d-%H%M%S')}")
         # every config is checked before any data is generated or any training starts
         sets = _parse_set(args.set, algos)

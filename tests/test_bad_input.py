@@ -38,6 +38,7 @@ CASES = [
     ("train", T + ["--set", "alpha=0.5"], 2, "unknown config key 'alpha'"),
     ("train", T + ["--set", "steps"], 2, "--set takes key=value"),
     ("train", T + ["--resume"], 2, "--resume needs --out DIR"),
+    ("train", T + ["--seed-offset", "-1"], 2, "--seed-offset -1: seeds are integers >= 0"),
     ("train", T + ["--chunk-len", "100"], 2, "chunk_len 100 is longer than an episode"),
     ("train", T + ["--algo", "bc-all-mlp", "--chunk-len", "5"], 2,
      "bc-all-mlp clones one action per step"),

@@ -214,6 +214,14 @@ def test_data_cli_errors(tmp_path, monkeypatch, capsys):
         == 2
     assert "--budget must be >= 1, got 0" in capsys.readouterr().err
     assert not list(tmp_path.glob("CarGoal2-*"))  # refused before any lock or partial state
+    # the same refusal from Python, before any lock file
+    from r2pac_jax.data.factory import FactoryError, generate_dataset
+
+    for kw, fragment in ((dict(env_steps=-5), "--budget must be >= 1, got -5"),
+                         (dict(checkpoint_every=0), "--checkpoint-every must be >= 1, got 0")):
+        with pytest.raises(FactoryError, match=fragment):
+            generate_dataset(get_task("CarGoal2"), source="ppo-lagrangian", **kw)
+    assert not list(tmp_path.glob("CarGoal2-*"))
 
 
 @pytest.mark.slow

@@ -225,6 +225,11 @@ def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: i
     n = trajectories or src["default_trajectories"]
     if n < 1:
         raise FactoryError(f"--trajectories must be >= 1, got {n}")
+    # refused before the lock file and the partial state exist, whoever the caller is
+    for name, value in (("--budget", env_steps),
+                        ("--checkpoint-every", learned.get("checkpoint_every"))):
+        if value is not None and value < 1:
+            raise FactoryError(f"{name} must be >= 1, got {value}")
     path = dataset_path(task, seed, n, source, env_steps)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
