@@ -100,6 +100,26 @@ def test_augmented_episodes_relabel_a_cheaper_episode_toward_the_frontier():
     assert np.all(cost[src] <= tc.max() + 1e-9)
 
 
+def test_augmentation_draws_between_a_frontier_above_max_reward_and_max_reward():
+    """OSRL's legacy np.random.uniform takes low > high; ours must too (AntVelocity's data put
+    the frontier plus min_reward above max_reward and Generator.uniform refused it)."""
+    rng = np.random.default_rng(1)
+    cost = rng.uniform(0, 60, 400)
+    ret = 10 + cost + rng.normal(0, 3, 400)
+    kw = dict(deg=1, max_rew_decrease=20.0, beta=1.0, augment_percent=0.2, min_reward=1.0)
+    src, tc, tr = sequences.augment(cost, ret, max_reward=40.0, rng=np.random.default_rng(0), **kw)
+    assert src.size == tc.size == tr.size > 0
+    # the frontier is about 10 + c (+ noise), so low = frontier + 1 lies below 40 for costs
+    # under 20 (draws in [low, 40]) and above it beyond 45 (draws in [40, low])
+    assert (tc < 20).any() and np.all(tr[tc < 20] <= 40.0 + 1e-9)
+    assert (tc > 45).any() and np.all(tr[tc > 45] >= 40.0 - 1e-9)
+    # the same draws as before this fix wherever low <= high: Generator.uniform is low +
+    # (high - low) u with u from rng.random, so one stream gives both
+    low, u = np.linspace(0.0, 1.0, 7), np.random.default_rng(5)
+    assert np.array_equal(np.random.default_rng(5).uniform(low, 2.0, 7),
+                          low + (2.0 - low) * u.random(7))
+
+
 def test_augmented_rows_are_their_sources_with_shifted_targets():
     ds = validate(toy_arrays(tuple((4 + i % 3, "timeout") for i in range(60))), "toy60")
     starts, lengths, ret, cost = sequences.episode_table(ds)

@@ -149,8 +149,10 @@ def augment(costs: np.ndarray, returns: np.ndarray, deg: int, max_rew_decrease: 
         return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
     tc = np.linspace(c.min(), c.max(), n)
     low = frontier(tc) + min_reward
-    # numpy's uniform(low, high) with low > high still draws between them, as OSRL's does
-    tr = rng.uniform(low=low, high=max_reward * np.ones(n), size=n)
+    # OSRL draws with the legacy np.random.uniform, which takes low > high (the frontier above
+    # max_reward) and draws between them; Generator.uniform refuses that, so the same formula,
+    # low + (high - low) u, is written out (equal to Generator.uniform wherever low <= high)
+    tr = low + (max_reward - low) * rng.random(n)
     src = nearest_points(np.stack([c, r], 1), np.stack([tc, tr], 1), max_rew_decrease, beta, rng)
     return kept[np.asarray(src, np.int64)], tc, tr
 
