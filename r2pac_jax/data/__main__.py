@@ -57,10 +57,10 @@ def main(argv=None) -> int:
     try:
         task = get_task(args.task)
         task.check_physics(args.physics)
-        for key in ("trajectories", "budget", "num_envs", "checkpoint_every"):
-            value = getattr(args, key)
-            if value is not None and value < 1:  # refused before any file or lock is made
-                raise DatasetError(f"--{key.replace('_', '-')} must be >= 1, got {value}")
+        # refused before any file or lock is made (0 trajectories would read as the default)
+        factory.check_at_least_one(trajectories=args.trajectories, budget=args.budget,
+                                   num_envs=args.num_envs,
+                                   checkpoint_every=args.checkpoint_every)
         if args.source is None:
             args.source = factory.default_source(task)
         n = args.trajectories or (task.collection.trajectories

@@ -205,6 +205,14 @@ def make_card(task: TaskSpec, ds: Dataset, seed: int, trajectories: int, source:
     )
 
 
+def check_at_least_one(**counts) -> None:
+    """Refuse a count below 1 (trajectories, budget, num_envs, checkpoint_every; None = the
+    default), named as its `data make` option."""
+    for key, value in counts.items():
+        if value is not None and value < 1:
+            raise FactoryError(f"--{key.replace('_', '-')} must be >= 1, got {value}")
+
+
 def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: int = 0,
                      progress: Union[bool, Callable[[int], None], None] = None,
                      plot: bool = True,
@@ -223,13 +231,9 @@ def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: i
         source = default_source(task)
     src = _source(task, source, physics)
     n = trajectories or src["default_trajectories"]
-    if n < 1:
-        raise FactoryError(f"--trajectories must be >= 1, got {n}")
     # refused before the lock file and the partial state exist, whoever the caller is
-    for name, value in (("--budget", env_steps),
-                        ("--checkpoint-every", learned.get("checkpoint_every"))):
-        if value is not None and value < 1:
-            raise FactoryError(f"{name} must be >= 1, got {value}")
+    check_at_least_one(trajectories=n, budget=env_steps,
+                       checkpoint_every=learned.get("checkpoint_every"))
     path = dataset_path(task, seed, n, source, env_steps)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
