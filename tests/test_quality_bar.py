@@ -154,3 +154,42 @@ def test_the_v2_chain_covers_every_task_with_a_learned_source_and_skips_finished
     (tmp_path / order[0]).mkdir()
     (tmp_path / order[0] / "r2pac.json").write_text("{}")
     assert nt.unfinished(tmp_path) == order[1:]
+
+
+def test_a_budget_fitted_to_a_session_is_below_dsrls_and_named_in_the_file(tmp_path, monkeypatch,
+                                                                           capsys):
+    """BUDGET_HOURS: the plan cuts a task's RL budget to what the measured rate finishes in the
+    hours given (whole millions, never above DSRL's, never below 1M), the file's name carries the
+    cut, and too short a budget for the target's episodes is said; the quality bar then reads that
+    file when no DSRL-budget file exists."""
+    from r2pac_jax.data import DatasetError, factory
+    from r2pac_jax.data.factory.collect import (CPU2_STEPS_PER_S, MEAN_OVER_INIT_RATE,
+                                                budget_for_hours)
+    from r2pac_jax.tasks import get_task
+
+    monkeypatch.setenv("R2PAC_DATA_DIR", str(tmp_path))
+    spec = importlib.util.spec_from_file_location("next_tasks", SCRIPT.with_name("next_tasks.py"))
+    nt = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(nt)
+    t = get_task("CarButton2")
+    dsrl = t.collection.env_steps
+    assert nt.plan("CarButton2") == (dsrl, factory.learned_path(t))
+    b, path = nt.plan("CarButton2", hours=1.0)
+    want = int(3600 * CPU2_STEPS_PER_S["CarButton2"] * MEAN_OVER_INIT_RATE // 1e6) * 1_000_000
+    assert b == want and 1_000_000 <= b < dsrl
+    assert path.name.endswith(f"-b{b}.hdf5") and path != factory.learned_path(t)
+    assert budget_for_hours(t, 1000.0) == dsrl  # never above DSRL's
+    assert budget_for_hours(t, 1e-4) == 1_000_000
+    with pytest.raises(DatasetError, match="> 0"):
+        budget_for_hours(t, 0.0)
+    capsys.readouterr()
+    nt.plan("AntCircle", hours=0.5)  # 5,728 episodes of 500 steps do not fit
+    assert "below the target 5,728" in capsys.readouterr().err
+    # the quality bar finds the fitted file (complete: it has its card) when it is the only one
+    qbm = importlib.util.module_from_spec(
+        importlib.util.spec_from_file_location("qb2", SCRIPT))
+    qbm.__spec__.loader.exec_module(qbm)
+    assert qbm.learned_file("CarButton2") is None
+    path.write_bytes(b"")
+    factory.card_path(path).write_text("{}")
+    assert qbm.learned_file("CarButton2") == path

@@ -5,6 +5,10 @@
 #
 #   nice -n 10 bash experiments/data_factory/make_learned.sh [TASK ...] > runs/make_learned.log 2>&1
 #
+# BUDGET_HOURS=H: each task's RL budget cut to what is expected to finish in H hours on the
+# 2-core CPU (a machine that does not outlive the session loses a partial generation; the file's
+# name and card record the smaller budget). Unset: DSRL's budgets.
+#
 # Order (the data issue): the six Car tasks and the paper's three velocity tasks first, the
 # quickest first within them (estimates in GENERATION.md), then the rest, then the eight Bullet
 # tasks (pybullet through --physics bullet, quickest first; AntCircle's 54M steps last).
@@ -19,8 +23,11 @@ if [ ${#TASKS[@]} -eq 0 ]; then
 fi
 for t in "${TASKS[@]}"; do
   echo "== $t $(date -u +%FT%TZ)"
-  python -m r2pac_jax.data make --task "$t" --source ppo-lagrangian || echo "!! $t failed ($?)"
-  f=$(python -c "from r2pac_jax.data import factory; from r2pac_jax.tasks import get_task; print(factory.learned_path(get_task('$t')))")
+  # DSRL's budget, or with BUDGET_HOURS the largest expected to finish in that time (next_tasks.py)
+  read -r budget f < <(python experiments/data_factory/next_tasks.py --plan "$t" \
+                         ${BUDGET_HOURS:+--hours "$BUDGET_HOURS"}) || { echo "!! $t: no plan"; continue; }
+  python -m r2pac_jax.data make --task "$t" --source ppo-lagrangian --budget "$budget" \
+    || echo "!! $t failed ($?)"
   if [ -f "$f" ] && [ ! -f "$f.checks.json" ]; then
     echo "== checks $t $(date -u +%FT%TZ)"
     python -m r2pac_jax.data check "$f" | tail -1

@@ -3,11 +3,17 @@ when its quality-bar results are archived in results_v2/TASK (r2pac.json). Print
 space-separated (the first N with --first N), for
 
     nice -n 5 bash experiments/data_factory/task_pipeline.sh $(python experiments/data_factory/next_tasks.py --first 1)
+
+`--plan TASK [--hours H]` prints the RL budget and the file of one task's generation: DSRL's
+budget, or with --hours the largest budget expected to finish in H hours on the 2-core CPU
+(`collect.budget_for_hours`; the file's name and card record a budget below DSRL's). The
+pipeline scripts read it (BUDGET_HOURS), so the budget is chosen by the clock before any score.
 """
 from __future__ import annotations
 
 import argparse
 import re
+import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -27,10 +33,44 @@ def unfinished(archive: Path = HERE / "results_v2") -> list[str]:
     return [t for t in ordered_tasks() if not (archive / t / "r2pac.json").exists()]
 
 
+def plan(task: str, hours=None) -> tuple[int, Path]:
+    """(RL budget in env steps, the file it makes) for one task's learned-behaviour data."""
+    from r2pac_jax.data import factory
+    from r2pac_jax.data.factory.collect import budget_for_hours
+    from r2pac_jax.tasks import get_task
+
+    t = get_task(task)
+    if t.collection is None:
+        raise SystemExit(f"{task} has no learned-behaviour recipe")
+    budget = t.collection.env_steps
+    if hours is not None:
+        fit = budget_for_hours(t, hours)
+        if fit is None:
+            raise SystemExit(f"{task}: no measured generation rate to fit a budget to "
+                             "(collect.CPU2_STEPS_PER_S); run without --hours")
+        budget = fit
+        need = t.collection.trajectories * t.episode_len
+        if budget < need:  # fewer finished episodes than the file's target: the card will say so
+            print(f"warning: {task}: {budget:,} steps in {hours:g} h hold at most "
+                  f"{budget // t.episode_len:,} whole episodes, below the target "
+                  f"{t.collection.trajectories:,} ({need:,} steps)", file=sys.stderr)
+    return budget, factory.learned_path(t, env_steps=budget)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--first", type=int, default=None, help="only the first N")
+    ap.add_argument("--plan", default=None, metavar="TASK",
+                    help="print TASK's RL budget and file path instead")
+    ap.add_argument("--hours", type=float, default=None,
+                    help="with --plan: fit the budget to H hours on the 2-core CPU")
     args = ap.parse_args()
+    if args.plan:
+        budget, path = plan(args.plan, args.hours)
+        print(budget, path)
+        return
+    if args.hours is not None:
+        ap.error("--hours goes with --plan TASK")
     todo = unfinished()
     print(" ".join(todo[:args.first] if args.first else todo))
 

@@ -38,15 +38,13 @@ ALGOS = ALGOS_V1  # the columns of a report when the runs do not say otherwise
 
 
 def learned_file(task: str):
-    """The task's learned-behaviour (v2) file at DSRL's size, or None."""
+    """The task's learned-behaviour (v2) file: DSRL's budget first, else the largest (a budget
+    fitted to a session: its name and card say so); None if there is none."""
     from r2pac_jax.data import factory
     from r2pac_jax.tasks import get_task
 
     t = get_task(task)
-    if t.collection is None:
-        return None
-    p = factory.learned_path(t)
-    return p if p.exists() and factory.card_path(p).exists() else None
+    return None if t.collection is None else factory.find_learned(t)
 
 
 def default_tasks() -> list[str]:

@@ -14,7 +14,8 @@
 # Environment: QB_OUT (runs/quality_bar_v2), TABLE_OUT (runs/table1), ALGOS (Table 1's columns,
 # default bc-all-mlp,cpq,coptidice,r2pac: the quickest on a CPU; add bcq-lag,cdt,fisor where the
 # session has the hours: `python -m r2pac_jax.table ... --estimate`), TABLE_COLUMNS (the committed
-# table's columns, default bc-all-mlp,cpq,coptidice,bcq-lag,r2pac), SKIP_TABLE=1 to stop after 3.
+# table's columns, default bc-all-mlp,cpq,coptidice,bcq-lag,r2pac), SKIP_TABLE=1 to stop after 3,
+# BUDGET_HOURS=H to fit each task's RL budget to H hours (make_learned.sh; recorded in the card).
 # A killed pipeline restarts where it stopped: finished files, runs and cells are skipped.
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -27,7 +28,8 @@ TABLE_KEEP=experiments/table1/cpu-quick  # the committed CPU table (results and 
 for t in "$@"; do
   echo "== $t: data $(date -u +%FT%TZ)"
   bash experiments/data_factory/make_learned.sh "$t" || { echo "!! $t: data failed"; continue; }
-  f=$(python -c "from r2pac_jax.data import factory; from r2pac_jax.tasks import get_task; print(factory.learned_path(get_task('$t')))")
+  read -r _ f < <(python experiments/data_factory/next_tasks.py --plan "$t" \
+                   ${BUDGET_HOURS:+--hours "$BUDGET_HOURS"})
   if [ ! -f "$f" ] || [ ! -f "$f.checks.json" ]; then
     echo "!! $t: no file or no checks at $f"; continue
   fi

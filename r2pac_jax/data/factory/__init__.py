@@ -136,10 +136,11 @@ def dataset_path(task: TaskSpec, seed: int, trajectories: int, source: str = "sc
                           f"n{trajectories}{budget}.hdf5")
 
 
-def learned_path(task: TaskSpec, seed: int = 0) -> Path:
+def learned_path(task: TaskSpec, seed: int = 0, env_steps: Optional[int] = None) -> Path:
     """The task's learned-behaviour file at DSRL's size and budget (what `data make --source
-    ppo-lagrangian` writes by default), whether or not it exists yet."""
-    return dataset_path(task, seed, task.collection.trajectories, "ppo-lagrangian")
+    ppo-lagrangian` writes by default), or at the RL budget `env_steps`, whether or not it
+    exists yet."""
+    return dataset_path(task, seed, task.collection.trajectories, "ppo-lagrangian", env_steps)
 
 
 def card_path(path: Path) -> Path:

@@ -54,7 +54,31 @@ CPU2_STEPS_PER_S = {
     # bullet backend, beside other runs (2026-12-02, load 3-4): BallRun 100 x 100, BallCircle
     # 50 x 200, CarRun 50 x 200, CarCircle 33 x 300, AntRun 50 x 200, AntCircle 20 x 500
     "BallRun": 6976, "BallCircle": 4864, "CarRun": 1370, "CarCircle": 752, "AntRun": 1614,
-    "AntCircle": 825}
+    "AntCircle": 825,
+    # bullet, 2026-12-03 at nice 19 beside a generation (load ~2.5): DroneRun 50 x 200,
+    # DroneCircle 33 x 300
+    "DroneRun": 1710, "DroneCircle": 1532}
+
+
+# A whole generation's mean rate over the rate above (policy at initialisation), in the eight
+# full-budget files of GENERATION.md: 0.45-0.77 for the MuJoCo tasks beside other work, 1.0-1.6
+# for the Bullet ones (their updates end on episode boundaries). Budgets fitted to a session
+# take the MuJoCo end, so that a generation meant to fit usually does.
+MEAN_OVER_INIT_RATE = 0.6
+
+
+def budget_for_hours(task: TaskSpec, hours: float) -> Optional[int]:
+    """The RL budget (env steps, whole millions, at most DSRL's) that a generation is expected to
+    finish in `hours` on the 2-core CPU beside one other job, or None where the rate was never
+    measured. For a machine that does not outlive a session: DSRL's 22-54M steps take 2-18 h
+    here, and a partial generation dies with its machine."""
+    if not hours > 0:
+        raise DatasetError(f"the hours a generation may take must be > 0, got {hours}")
+    rate = CPU2_STEPS_PER_S.get(task.name)
+    if rate is None or task.collection is None:
+        return None
+    fit = int(hours * 3600 * rate * MEAN_OVER_INIT_RATE // 1_000_000) * 1_000_000
+    return max(1_000_000, min(task.collection.env_steps, fit))
 
 
 def estimate_hours(task: TaskSpec, env_steps: Optional[int] = None) -> Optional[float]:
