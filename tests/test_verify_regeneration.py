@@ -1,0 +1,60 @@
+"""verify_regeneration.py: a regenerated file against its committed sha256, log and card."""
+import gzip
+import hashlib
+import importlib.util
+import json
+from pathlib import Path
+
+SCRIPT = (Path(__file__).resolve().parents[1] / "experiments" / "data_factory"
+          / "verify_regeneration.py")
+
+
+def _mod():
+    spec = importlib.util.spec_from_file_location("verify_regeneration", SCRIPT)
+    m = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(m)
+    return m
+
+
+def _setup(tmp, body=b"data", log_rows=None, card=None, pinned_body=b"data"):
+    name = "BallRun-generated-ppolag-v2-s0-n3.hdf5"
+    f = tmp / "cache" / name
+    f.parent.mkdir()
+    f.write_bytes(body)
+    card = card or {"task": "BallRun", "trajectories": 3, "cost_range": [0, 5]}
+    f.with_suffix(".json").write_text(json.dumps(card))
+    rows = log_rows or [{"update": u, "multiplier": u * 0.5, "steps_per_s": 100 + u}
+                        for u in (1, 2, 3)]
+    f.with_suffix(".log.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    arch = tmp / "archive" / "BallRun"
+    arch.mkdir(parents=True)
+    (arch / f.with_suffix(".json").name).write_text(
+        json.dumps({"task": "BallRun", "trajectories": 3, "cost_range": [0, 5]}))
+    with gzip.open(arch / f"{f.stem}.log.jsonl.gz", "wt") as g:  # other wall-clock speeds
+        for u in (1, 2, 3):
+            g.write(json.dumps({"update": u, "multiplier": u * 0.5, "steps_per_s": 7.0}) + "\n")
+    man = tmp / "manifest.json"
+    man.write_text(json.dumps({"datasets": {"BallRun": {
+        "file": name, "sha256": hashlib.sha256(pinned_body).hexdigest()}}}))
+    return f, man, tmp / "archive"
+
+
+def test_an_identical_regeneration_agrees_on_bytes_log_and_card(tmp_path):
+    f, man, arch = _setup(tmp_path)
+    assert _mod().main([str(f), "--manifest", str(man), "--archive", str(arch)]) == 0
+    out = json.loads(Path(f"{f}.regen.json").read_text())
+    assert out["bytes"]["agree"] and out["log"]["agree"] and out["card"]["agree"]
+    assert out["log"]["updates_compared"] == 3
+
+
+def test_a_different_regeneration_names_its_first_differing_update_and_fails(tmp_path):
+    rows = [{"update": 1, "multiplier": 0.5}, {"update": 2, "multiplier": 1.25},
+            {"update": 3, "multiplier": 9.0}]
+    f, man, arch = _setup(tmp_path, body=b"other", log_rows=rows,
+                          card={"task": "BallRun", "trajectories": 4, "cost_range": [0, 5]})
+    m = _mod()
+    assert m.main([str(f), "--manifest", str(man), "--archive", str(arch)]) == 1
+    out = json.loads(Path(f"{f}.regen.json").read_text())
+    assert out["bytes"]["agree"] is False
+    assert out["log"]["first_difference"] == 2 and out["log"]["keys"] == ["multiplier"]
+    assert out["card"]["differences"] == {"trajectories": {"new": 4, "old": 3}}
