@@ -1,9 +1,13 @@
-"""verify_regeneration.py: a regenerated file against its committed sha256, log and card."""
+"""verify_regeneration.py: a regenerated file against its pinned array digest, log and card."""
 import gzip
-import hashlib
 import importlib.util
 import json
 from pathlib import Path
+
+import numpy as np
+
+from r2pac_jax.data import write_dsrl
+from r2pac_jax.tasks import get_task
 
 SCRIPT = (Path(__file__).resolve().parents[1] / "experiments" / "data_factory"
           / "verify_regeneration.py")
@@ -16,11 +20,25 @@ def _mod():
     return m
 
 
-def _setup(tmp, body=b"data", log_rows=None, card=None, pinned_body=b"data"):
+def _arrays(reward):
+    t, n = get_task("BallRun"), 6  # two episodes of three steps
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(n + 1, t.obs_dim)).astype(np.float32)
+    nxt = obs[1:].copy()
+    nxt[2] = rng.normal(size=t.obs_dim)  # the first episode's last next-observation
+    return dict(observations=obs[:n], next_observations=nxt,
+                actions=np.zeros((n, t.act_dim), np.float32),
+                rewards=np.full(n, reward, np.float32), costs=np.zeros(n, np.float32),
+                terminals=np.zeros(n, bool), timeouts=np.array([0, 0, 1, 0, 0, 1], bool))
+
+
+def _setup(tmp, reward=1.0, log_rows=None, card=None, pinned_reward=1.0):
+    from r2pac_jax.data import Dataset
+
     name = "BallRun-generated-ppolag-v2-s0-n3.hdf5"
     f = tmp / "cache" / name
     f.parent.mkdir()
-    f.write_bytes(body)
+    write_dsrl(f, _arrays(reward))
     card = card or {"task": "BallRun", "trajectories": 3, "cost_range": [0, 5]}
     f.with_suffix(".json").write_text(json.dumps(card))
     rows = log_rows or [{"update": u, "multiplier": u * 0.5, "steps_per_s": 100 + u}
@@ -34,27 +52,27 @@ def _setup(tmp, body=b"data", log_rows=None, card=None, pinned_body=b"data"):
         for u in (1, 2, 3):
             g.write(json.dumps({"update": u, "multiplier": u * 0.5, "steps_per_s": 7.0}) + "\n")
     man = tmp / "manifest.json"
-    man.write_text(json.dumps({"datasets": {"BallRun": {
-        "file": name, "sha256": hashlib.sha256(pinned_body).hexdigest()}}}))
+    pinned = Dataset(**_arrays(pinned_reward)).digest()
+    man.write_text(json.dumps({"datasets": {"BallRun": {"file": name, "sha256": pinned}}}))
     return f, man, tmp / "archive"
 
 
-def test_an_identical_regeneration_agrees_on_bytes_log_and_card(tmp_path):
+def test_an_identical_regeneration_agrees_on_arrays_log_and_card(tmp_path):
     f, man, arch = _setup(tmp_path)
     assert _mod().main([str(f), "--manifest", str(man), "--archive", str(arch)]) == 0
     out = json.loads(Path(f"{f}.regen.json").read_text())
-    assert out["bytes"]["agree"] and out["log"]["agree"] and out["card"]["agree"]
+    assert out["arrays"]["agree"] and out["log"]["agree"] and out["card"]["agree"]
     assert out["log"]["updates_compared"] == 3
 
 
 def test_a_different_regeneration_names_its_first_differing_update_and_fails(tmp_path):
     rows = [{"update": 1, "multiplier": 0.5}, {"update": 2, "multiplier": 1.25},
             {"update": 3, "multiplier": 9.0}]
-    f, man, arch = _setup(tmp_path, body=b"other", log_rows=rows,
+    f, man, arch = _setup(tmp_path, reward=2.0, log_rows=rows,
                           card={"task": "BallRun", "trajectories": 4, "cost_range": [0, 5]})
     m = _mod()
     assert m.main([str(f), "--manifest", str(man), "--archive", str(arch)]) == 1
     out = json.loads(Path(f"{f}.regen.json").read_text())
-    assert out["bytes"]["agree"] is False
+    assert out["arrays"]["agree"] is False
     assert out["log"]["first_difference"] == 2 and out["log"]["keys"] == ["multiplier"]
     assert out["card"]["differences"] == {"trajectories": {"new": 4, "old": 3}}

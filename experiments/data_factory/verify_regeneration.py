@@ -6,7 +6,9 @@ compares a file made anew with all three and prints what agrees:
 
     python experiments/data_factory/verify_regeneration.py FILE [--manifest M] [--archive DIR]
 
-- bytes: the file's sha256 against the manifest's pin for its task;
+- arrays: the sha256 of the file's arrays (`Dataset.digest`, what the Table-1 manifest pins for
+  its task) against the pin; the file's own bytes are printed too, but HDF5 writes its
+  creation time into the file, so two identical generations differ there;
 - log: the new training log (FILE.log.jsonl, written beside the file) against the archived
   one, update by update over every logged quantity except wall-clock speed; the first update
   that differs is named;
@@ -64,12 +66,17 @@ def verify(file: Path, manifest: Path, archive: Path) -> dict:
     out: dict = dict(file=str(file), task=task)
     pins = json.loads(manifest.read_text()).get("datasets", {}) if manifest.exists() else {}
     pin = pins.get(task)
-    digest = sha256(file)
+    from r2pac_jax.data import load_dsrl
+    from r2pac_jax.tasks import get_task
+
+    t = get_task(task)
+    digest = load_dsrl(str(file), obs_dim=t.obs_dim, act_dim=t.act_dim, task_name=task).digest()
+    out["file_sha256"] = sha256(file)
     if pin and pin.get("file") == file.name:
-        out["bytes"] = dict(agree=digest == pin["sha256"], sha256=digest, pinned=pin["sha256"])
+        out["arrays"] = dict(agree=digest == pin["sha256"], sha256=digest, pinned=pin["sha256"])
     else:
-        out["bytes"] = dict(agree=None, sha256=digest, pinned=None,
-                            note=f"{manifest} pins no file of this name for {task}")
+        out["arrays"] = dict(agree=None, sha256=digest, pinned=None,
+                             note=f"{manifest} pins no file of this name for {task}")
     logs = sorted((archive / task).glob(f"{file.stem}.log.jsonl.gz"))
     new_log = file.with_suffix(".log.jsonl")
     if logs and new_log.exists():
@@ -85,7 +92,7 @@ def verify(file: Path, manifest: Path, archive: Path) -> dict:
         out["card"] = dict(agree=not diff, differences=diff)
     else:
         out["card"] = dict(agree=None, note=f"no archived card {old_card}")
-    out["agree"] = all(out[k]["agree"] is not False for k in ("bytes", "log", "card"))
+    out["agree"] = all(out[k]["agree"] is not False for k in ("arrays", "log", "card"))
     from r2pac_jax.io import atomic_write_json
 
     atomic_write_json(Path(f"{file}.regen.json"), out)
