@@ -193,3 +193,12 @@ def test_a_budget_fitted_to_a_session_is_below_dsrls_and_named_in_the_file(tmp_p
     path.write_bytes(b"")
     factory.card_path(path).write_text("{}")
     assert qbm.learned_file("CarButton2") == path
+
+
+def test_plan_refuses_non_positive_hours_with_a_clear_message():
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, str(SCRIPT.with_name("next_tasks.py")), "--plan",
+                        "CarButton2", "--hours", "0"], capture_output=True, text=True)
+    assert r.returncode == 2 and "must be > 0, got 0.0" in r.stderr and not r.stdout

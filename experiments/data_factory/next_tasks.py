@@ -66,7 +66,12 @@ def main() -> None:
                     help="with --plan: fit the budget to H hours on the 2-core CPU")
     args = ap.parse_args()
     if args.plan:
-        budget, path = plan(args.plan, args.hours)
+        from r2pac_jax.data import DatasetError
+
+        try:
+            budget, path = plan(args.plan, args.hours)
+        except DatasetError as e:  # e.g. --hours 0
+            ap.error(str(e))
         print(budget, path)
         return
     if args.hours is not None:

@@ -57,7 +57,11 @@ def compare_logs(new: list[dict], old: list[dict]) -> dict:
 def verify(file: Path, manifest: Path, archive: Path) -> dict:
     if not file.exists():
         raise SystemExit(f"error: no file {file}")
-    card_file = file.with_suffix(".json")
+    from r2pac_jax.data import load_dsrl
+    from r2pac_jax.data.factory import card_path
+    from r2pac_jax.tasks import get_task
+
+    card_file = card_path(file)
     if not card_file.exists():
         raise SystemExit(f"error: {file} has no card ({card_file}): the generation has not "
                          "finished")
@@ -66,9 +70,6 @@ def verify(file: Path, manifest: Path, archive: Path) -> dict:
     out: dict = dict(file=str(file), task=task)
     pins = json.loads(manifest.read_text()).get("datasets", {}) if manifest.exists() else {}
     pin = pins.get(task)
-    from r2pac_jax.data import load_dsrl
-    from r2pac_jax.tasks import get_task
-
     t = get_task(task)
     digest = load_dsrl(str(file), obs_dim=t.obs_dim, act_dim=t.act_dim, task_name=task).digest()
     out["file_sha256"] = sha256(file)
@@ -77,10 +78,10 @@ def verify(file: Path, manifest: Path, archive: Path) -> dict:
     else:
         out["arrays"] = dict(agree=None, sha256=digest, pinned=None,
                              note=f"{manifest} pins no file of this name for {task}")
-    logs = sorted((archive / task).glob(f"{file.stem}.log.jsonl.gz"))
+    old_log = archive / task / f"{file.stem}.log.jsonl.gz"  # task_pipeline.sh archives it so
     new_log = file.with_suffix(".log.jsonl")
-    if logs and new_log.exists():
-        with gzip.open(logs[0], "rt") as f:
+    if old_log.exists() and new_log.exists():
+        with gzip.open(old_log, "rt") as f:
             old = _rows(f)
         out["log"] = compare_logs(_rows(new_log.read_text().splitlines()), old)
     else:
