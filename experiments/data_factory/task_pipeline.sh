@@ -14,7 +14,8 @@
 # Environment: QB_OUT (runs/quality_bar_v2), TABLE_OUT (runs/table1), ALGOS (Table 1's columns,
 # default bc-all-mlp,cpq,coptidice,r2pac: the quickest on a CPU; add bcq-lag,cdt,fisor where the
 # session has the hours: `python -m r2pac_jax.table ... --estimate`), TABLE_COLUMNS (the committed
-# table's columns, default every column: bc-all-mlp,cpq,coptidice,bcq-lag,cdt,fisor,r2pac), SKIP_TABLE=1 to stop after 3,
+# table's columns, default all seven: bc-all-mlp,cpq,coptidice,bcq-lag,cdt,fisor,r2pac; a column
+# left out drops its cells from table.md), SKIP_TABLE=1 to stop after 3,
 # BUDGET_HOURS=H to fit each task's RL budget to H hours (make_learned.sh; recorded in the card).
 # A killed pipeline restarts where it stopped: finished files, runs and cells are skipped.
 set -uo pipefail
