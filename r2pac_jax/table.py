@@ -16,8 +16,9 @@ every algorithm on the first task and prints the wall estimate, then stops.
 A table made in pieces (sessions, machines, a second directory beside a running one):
 `--merge-from SRC` first brings SRC's finished cells and its manifest's tasks into DIR (same
 preset, seeds and episodes, no task on other data; DIR's own cells win); `--table-only` runs
-nothing and writes the table from DIR's finished cells of `--algos`, for `--tasks` or every
-task in DIR's manifest.
+nothing and writes the table from DIR's finished cells of `--algos` (without `--algos`: of
+every algorithm with one, in the paper's column order), for `--tasks` or every task in DIR's
+manifest.
 """
 from __future__ import annotations
 
@@ -31,6 +32,24 @@ from pathlib import Path
 
 
 DEFAULT_ALGOS = "bc-all-mlp,cpq,coptidice,bcq-lag,r2pac"
+# Column order of a table whose columns are found, not named: the paper's Table 1 (baselines,
+# then R2PAC); algorithms it lacks go in between, in the registry's order.
+_BASELINE_ORDER = ("bc-all", "bc-safe", "bc-all-mlp", "bc-safe-mlp", "cpq", "coptidice", "bcq-lag",
+                   "cdt", "fisor")
+
+
+def column_order(algos) -> list[str]:
+    """`algos` in the table's column order: the paper's baselines, other agents, R2PAC's."""
+    from r2pac_jax.agents import algo_names
+
+    names = algo_names()
+
+    def rank(a):
+        if a in _BASELINE_ORDER:
+            return (0, _BASELINE_ORDER.index(a))
+        return (2 if a.startswith("r2pac") else 1, names.index(a) if a in names else len(names))
+
+    return sorted(algos, key=rank)
 
 
 def data_version(path: str) -> str:
@@ -53,8 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
                                  description=__doc__.split("\n")[0])
     ap.add_argument("--tasks", default=None, help="comma-separated task names (required "
                     "unless --table-only)")
-    ap.add_argument("--algos", default=DEFAULT_ALGOS, help=f"comma-separated (default "
-                    f"{DEFAULT_ALGOS})")
+    ap.add_argument("--algos", default=None, help=f"comma-separated (default {DEFAULT_ALGOS}; "
+                    "with --table-only: every algorithm with a finished cell in --out)")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--preset", default="auto", help="auto (quick on a CPU, paper on an "
                     "accelerator) | quick | paper")
@@ -292,8 +311,9 @@ def main(argv=None) -> int:
         tasks = [get_task(t) for t in (args.tasks or "").split(",") if t]
         for t in tasks:
             t.check_physics(args.physics)
-        algos = [a for a in args.algos.split(",") if a]
-        if not algos or (not tasks and not args.table_only):
+        found = args.algos is None and args.table_only  # columns from OUT's finished cells
+        algos = [a for a in (args.algos or ("" if found else DEFAULT_ALGOS)).split(",") if a]
+        if (not algos and not found) or (not tasks and not args.table_only):
             raise ConfigError("--tasks and --algos each need at least one name (--tasks may be "
                               "left out with --table-only: every task in --out)")
         for a in algos:
@@ -385,11 +405,17 @@ def _table_only(out: Path, tasks: list, algos, args, log) -> int:
     if missing:
         raise ConfigError(f"--table-only: {out} has no results for {', '.join(missing)} (its "
                           f"tasks: {', '.join(manifest['datasets'])})")
+    if not algos:  # no --algos: every algorithm with a finished cell, none silently dropped
+        from r2pac_jax.agents import algo_names
+
+        algos = algo_names()
     cells = finished_cells(out, manifest, algos)
     if tasks:
         cells = {t: cells[t] for t in tasks if t in cells}
     if not cells:
         raise ConfigError(f"--table-only: no finished cell of {', '.join(algos)} in {out}")
+    if args.algos is None:
+        algos = column_order({a for row in cells.values() for a in row})
     _write_table(out, cells, manifest, algos, args, log)
     return 0
 

@@ -110,6 +110,16 @@ def test_merge_from_joins_tables_and_table_only_trains_nothing(tmp_path, data_di
     assert main([*only, "--out", str(c), "--tasks", "ReachAvoid", "--merge-from", str(a)]) == 0
     md = (c / "table.md").read_text()
     assert "0.12 ±" in md and "HalfCheetahVelocity" not in md
+    # without --algos, --table-only finds its columns: every algorithm with a finished cell, in
+    # the paper's order (R2PAC last), none left out; an unfinished cell (no results.json) is none
+    for algo in ("r2pac", "cpq"):
+        shutil.copytree(c / "ReachAvoid" / "bc-all-mlp", c / "ReachAvoid" / algo)
+    (c / "ReachAvoid" / "fisor").mkdir()
+    assert main(["--table-only", *common, "--out", str(c)]) == 0
+    head = (c / "table.md").read_text().splitlines()[0]
+    cols = [h.split()[0] for h in head.strip("|").split("|")[1::2]]
+    assert cols == ["bc-all-mlp", "cpq", "r2pac"], head
+    assert "| HalfCheetahVelocity |" in (c / "table.md").read_text()
     # refused: another preset, a task on other data, a SRC that is no table, an unknown task
     capsys.readouterr()
     assert main([*[x if x != "quick" else "paper" for x in only], "--out", str(c)]) == 2
@@ -172,3 +182,12 @@ def test_a_pinned_file_missing_here_is_refused_before_any_data_is_made(tmp_path,
     assert "pins ReachAvoid's data to gone.hdf5" in err and "copy that file there" in err
     gen = data_dir / "gen"
     assert not gen.exists() or not any(gen.iterdir())  # no dataset was made
+
+
+def test_found_columns_follow_the_papers_order():
+    from r2pac_jax.table import column_order
+
+    assert column_order(["r2pac", "fisor", "bc-safe", "r2pac-hj", "cdt", "cpq", "bcq-lag",
+                         "coptidice", "bc-all-mlp"]) == [
+        "bc-safe", "bc-all-mlp", "cpq", "coptidice", "bcq-lag", "cdt", "fisor", "r2pac",
+        "r2pac-hj"]
