@@ -405,7 +405,8 @@ def _table_only(out: Path, tasks: list, algos, args, log) -> int:
     if missing:
         raise ConfigError(f"--table-only: {out} has no results for {', '.join(missing)} (its "
                           f"tasks: {', '.join(manifest['datasets'])})")
-    if not algos:  # no --algos: every algorithm with a finished cell, none silently dropped
+    found = args.algos is None  # no --algos: every algorithm with a finished cell, none dropped
+    if found:
         from r2pac_jax.agents import algo_names
 
         algos = algo_names()
@@ -414,7 +415,7 @@ def _table_only(out: Path, tasks: list, algos, args, log) -> int:
         cells = {t: cells[t] for t in tasks if t in cells}
     if not cells:
         raise ConfigError(f"--table-only: no finished cell of {', '.join(algos)} in {out}")
-    if args.algos is None:
+    if found:
         algos = column_order({a for row in cells.values() for a in row})
     _write_table(out, cells, manifest, algos, args, log)
     return 0
