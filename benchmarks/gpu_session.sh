@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # The GPU measurements of benchmarks/RESULTS.md, batched into few long calls on a lent machine.
 #
-#   bash benchmarks/gpu_session.sh SECTION OUTDIR      SECTION: train | env | alpha_h | quality_bar | ppolag
+#   bash benchmarks/gpu_session.sh SECTION OUTDIR      SECTION: train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed
 #
 # The GPU machine has jax/flax/optax/orbax/chex/h5py but no mujoco and no network: carry the
 # cp312 wheels in .whl/ (see benchmarks/RESULTS.md, "GPU figures") and they are installed
 # first. Every step has its own time limit so one slow step cannot take the others with it;
 # each step appends JSON lines to OUTDIR as it finishes.
 set -u
-section=${1:?section: train | env | alpha_h | quality_bar | ppolag}
+section=${1:?section: train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed}
 out=${2:?output directory}
 mkdir -p "$out"
 export PYTHONUNBUFFERED=1
@@ -67,5 +67,16 @@ case $section in
     done
     cp /tmp/ppolag/*.json /tmp/ppolag/*.png "$out"/ 2>/dev/null
     ;;
-  *) echo "unknown section $section (train | env | alpha_h | quality_bar | ppolag)"; exit 2 ;;
+  bullet_env)  # issue 14: the Bullet tasks' MJX re-creations at large batch, policy excluded and in
+    step 270 env_speed python3 benchmarks/env_speed.py stepping \
+      --tasks BallRun,DroneRun,AntRun,BallCircle,DroneCircle,CarRun,AntCircle,CarCircle \
+      --backends mjx --batches 4096 --steps 20 --no-fidelity
+    step 90 env_speed python3 benchmarks/env_speed.py protocol --tasks BallRun,AntRun \
+      --backends mjx --episodes 1024 --policies none,r2pac
+    ;;
+  gen_speed)  # issue 17: the learned-behaviour generation (rollout + PPO update) on MJX, large batch
+    step 150 gen_speed python3 experiments/data_factory/time_learned.py \
+      --task HalfCheetahVelocity --physics mjx --envs 1024,4096 --rollout-len 100 --updates 3
+    ;;
+  *) echo "unknown section $section (train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed)"; exit 2 ;;
 esac
