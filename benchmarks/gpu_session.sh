@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # The GPU measurements of benchmarks/RESULTS.md, batched into few long calls on a lent machine.
 #
-#   bash benchmarks/gpu_session.sh SECTION OUTDIR      SECTION: train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed
+#   bash benchmarks/gpu_session.sh SECTION OUTDIR      SECTION: train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed | table
 #
 # The GPU machine has jax/flax/optax/orbax/chex/h5py but no mujoco and no network: carry the
 # cp312 wheels in .whl/ (see benchmarks/RESULTS.md, "GPU figures") and they are installed
 # first. Every step has its own time limit so one slow step cannot take the others with it;
 # each step appends JSON lines to OUTDIR as it finishes.
 set -u
-section=${1:?section: train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed}
+section=${1:?section: train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed | table}
 out=${2:?output directory}
 mkdir -p "$out"
 export PYTHONUNBUFFERED=1
@@ -78,5 +78,21 @@ case $section in
     step 150 gen_speed python3 experiments/data_factory/time_learned.py \
       --task HalfCheetahVelocity --physics mjx --envs 1024,4096 --rollout-len 100 --updates 3
     ;;
-  *) echo "unknown section $section (train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed)"; exit 2 ;;
+  table)  # issue 15: Table 1 cells, one process per algorithm in $ALGOS side by side, on $TASKS
+    # ($PRESET, default quick; $STEPS per phase if set; 3 seeds, 20 episodes, C MuJoCo evaluation
+    # as on the CPU); the data come from $R2PAC_DATA_DIR (carry the pinned files). Finished
+    # cells come back in one archive.
+    export XLA_PYTHON_CLIENT_PREALLOCATE=false  # the processes share the GPU
+    for a in ${ALGOS//,/ }; do
+      (t0=$SECONDS; timeout "${LIMIT:-480}" python3 -m r2pac_jax.table --tasks "${TASKS:?}" \
+        --algos "$a" --seeds 3 --episodes 20 --preset "${PRESET:-quick}" ${STEPS:+--steps "$STEPS"} \
+        --physics mujoco \
+        --out "/tmp/table_$a" --no-progress > "$out/table_$a.log" 2>&1
+       echo "=== table $a: rc $? after $((SECONDS - t0)) s") &
+    done
+    wait
+    (cd /tmp && tar czf "$out/table_cells.tar.gz" table_*/manifest.json table_*/*/*/results.json \
+      table_*/*/*/config.json table_*/*/*/eval.jsonl table_*/*/*/metrics.jsonl)
+    ;;
+  *) echo "unknown section $section (train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed | table)"; exit 2 ;;
 esac
