@@ -78,17 +78,19 @@ case $section in
     step 150 gen_speed python3 experiments/data_factory/time_learned.py \
       --task HalfCheetahVelocity --physics mjx --envs 1024,4096 --rollout-len 100 --updates 3
     ;;
-  table)  # issue 15: Table 1 cells, one process per algorithm in $ALGOS side by side, on $TASKS
-    # ($PRESET, default quick; $STEPS per phase if set; 3 seeds, 20 episodes, C MuJoCo evaluation
-    # as on the CPU); the data come from $R2PAC_DATA_DIR (carry the pinned files). Finished
-    # cells come back in one archive.
+  table)  # issue 15: Table 1 cells, one process per entry of $ALGOS side by side, on $TASKS. An
+    # entry is ALGO or ALGO:PRESET:STEPS (PRESET default $PRESET or quick; STEPS per phase, default
+    # $STEPS or the preset's); 3 seeds, 20 episodes, C MuJoCo evaluation as on the CPU. The data
+    # come from $R2PAC_DATA_DIR (carry the pinned files). Finished cells come back in one archive.
     export XLA_PYTHON_CLIENT_PREALLOCATE=false  # the processes share the GPU
-    for a in ${ALGOS//,/ }; do
+    for e in ${ALGOS//,/ }; do
+      IFS=: read -r a p n <<< "$e"
+      p=${p:-${PRESET:-quick}} n=${n:-${STEPS:-}}
+      tag=${a}${n:+_${p}_${n}}
       (t0=$SECONDS; timeout "${LIMIT:-480}" python3 -m r2pac_jax.table --tasks "${TASKS:?}" \
-        --algos "$a" --seeds 3 --episodes 20 --preset "${PRESET:-quick}" ${STEPS:+--steps "$STEPS"} \
-        --physics mujoco \
-        --out "/tmp/table_$a" --no-progress > "$out/table_$a.log" 2>&1
-       echo "=== table $a: rc $? after $((SECONDS - t0)) s") &
+        --algos "$a" --seeds 3 --episodes 20 --preset "$p" ${n:+--steps "$n"} --physics mujoco \
+        --out "/tmp/table_$tag" --no-progress > "$out/table_$tag.log" 2>&1
+       echo "=== table $e: rc $? after $((SECONDS - t0)) s") &
     done
     wait
     (cd /tmp && tar czf "$out/table_cells.tar.gz" table_*/manifest.json table_*/*/*/results.json \
