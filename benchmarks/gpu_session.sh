@@ -86,7 +86,7 @@ case $section in
     for e in ${ALGOS//,/ }; do
       IFS=: read -r a p n <<< "$e"
       p=${p:-${PRESET:-quick}} n=${n:-${STEPS:-}}
-      tag=${a}${n:+_${p}_${n}}
+      tag=${e//:/_}  # one output folder per entry, named as it is written
       (t0=$SECONDS; timeout "${LIMIT:-480}" python3 -m r2pac_jax.table --tasks "${TASKS:?}" \
         --algos "$a" --seeds 3 --episodes 20 --preset "$p" ${n:+--steps "$n"} --physics mujoco \
         --out "/tmp/table_$tag" --no-progress > "$out/table_$tag.log" 2>&1
