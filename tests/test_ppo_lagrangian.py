@@ -125,6 +125,9 @@ def test_resumed_generation_equals_an_uninterrupted_one(name, kw, tmp_path):
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
     card = json.loads(factory.card_path(part).read_text())
     assert card["data_version"] == 2 and card["source"] == "ppo-lagrangian"
+    # the physics library's version, so a regenerated file can be matched to its card
+    import mujoco
+    assert card["versions"]["mujoco"] == mujoco.__version__
     assert card["budget_below_dsrl"] and card["trajectories"] <= kw["trajectories"]
     assert card["generation"]["updates"] == kw["env_steps"] // (
         kw["ppo"]["num_envs"] * kw["ppo"]["rollout_len"])

@@ -201,9 +201,20 @@ def make_card(task: TaskSpec, ds: Dataset, seed: int, trajectories: int, source:
         normalised_return_range=[float((rets.min() - task.r_min) / span),
                                  float((rets.max() - task.r_min) / span)],
         r_min=task.r_min, r_max=task.r_max,
+        # the physics library too: a file regenerated under another MuJoCo need not match
         versions=dict(r2pac_jax=r2pac_jax.__version__, jax=jax.__version__,
-                      numpy=np.__version__, python=platform.python_version()),
+                      numpy=np.__version__, python=platform.python_version(),
+                      mujoco=_installed_version("mujoco")),
     )
+
+
+def _installed_version(package: str) -> Optional[str]:
+    """The installed distribution's version, or None where it is not installed."""
+    from importlib import metadata
+    try:
+        return metadata.version(package)
+    except metadata.PackageNotFoundError:
+        return None
 
 
 def check_at_least_one(**counts) -> None:
