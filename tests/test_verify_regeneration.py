@@ -39,7 +39,8 @@ def _setup(tmp, reward=1.0, log_rows=None, card=None, pinned_reward=1.0):
     f = tmp / "cache" / name
     f.parent.mkdir()
     write_dsrl(f, _arrays(reward))
-    card = card or {"task": "BallRun", "trajectories": 3, "cost_range": [0, 5]}
+    card = card or {"task": "BallRun", "trajectories": 3, "cost_range": [0, 5],
+                    "versions": {"jax": "0.10.2", "mujoco": "4.0.1"}}
     f.with_suffix(".json").write_text(json.dumps(card))
     rows = log_rows or [{"update": u, "multiplier": u * 0.5, "steps_per_s": 100 + u}
                         for u in (1, 2, 3)]
@@ -47,7 +48,8 @@ def _setup(tmp, reward=1.0, log_rows=None, card=None, pinned_reward=1.0):
     arch = tmp / "archive" / "BallRun"
     arch.mkdir(parents=True)
     (arch / f.with_suffix(".json").name).write_text(
-        json.dumps({"task": "BallRun", "trajectories": 3, "cost_range": [0, 5]}))
+        json.dumps({"task": "BallRun", "trajectories": 3, "cost_range": [0, 5],
+                    "versions": {"jax": "0.10.2"}}))  # an older card: no mujoco version
     with gzip.open(arch / f"{f.stem}.log.jsonl.gz", "wt") as g:  # other wall-clock speeds
         for u in (1, 2, 3):
             g.write(json.dumps({"update": u, "multiplier": u * 0.5, "steps_per_s": 7.0}) + "\n")
@@ -63,6 +65,8 @@ def test_an_identical_regeneration_agrees_on_arrays_log_and_card(tmp_path):
     out = json.loads(Path(f"{f}.regen.json").read_text())
     assert out["arrays"]["agree"] and out["log"]["agree"] and out["card"]["agree"]
     assert out["log"]["updates_compared"] == 3
+    # the versions are reported, not checked: the older card's missing mujoco is named only
+    assert out["versions"]["differ"] == ["mujoco"] and out["agree"]
 
 
 def test_a_different_regeneration_names_its_first_differing_update_and_fails(tmp_path):

@@ -12,7 +12,9 @@ compares a file made anew with all three and prints what agrees:
 - log: the new training log (FILE.log.jsonl, written beside the file) against the archived
   one, update by update over every logged quantity except wall-clock speed; the first update
   that differs is named;
-- card: the card's data fields (counts, ranges, split) against the archived card.
+- card: the card's data fields (counts, ranges, split) against the archived card; the two
+  cards' software versions (python, jax, numpy, mujoco) are printed beside, and those that
+  differ named, to read a disagreement by (not a check of their own).
 Exit 0 when every record that exists agrees, 1 otherwise. Written as JSON to FILE.regen.json.
 """
 from __future__ import annotations
@@ -91,6 +93,12 @@ def verify(file: Path, manifest: Path, archive: Path) -> dict:
         a, b = card, json.loads(old_card.read_text())
         diff = {k: dict(new=a.get(k), old=b.get(k)) for k in CARD_KEYS if a.get(k) != b.get(k)}
         out["card"] = dict(agree=not diff, differences=diff)
+        # not a check: the software each side ran, to read a disagreement by (a card made before
+        # 2026-12-04 21:00 has no mujoco version)
+        va, vb = a.get("versions") or {}, b.get("versions") or {}
+        out["versions"] = dict(new=va, old=vb,
+                               differ=sorted(k for k in set(va) | set(vb)
+                                             if va.get(k) != vb.get(k)))
     else:
         out["card"] = dict(agree=None, note=f"no archived card {old_card}")
     out["agree"] = all(out[k]["agree"] is not False for k in ("arrays", "log", "card"))
