@@ -136,3 +136,68 @@ def test_mjx_matches_c_mujoco(task, steps):
         s, s2 = mjx_env.step_batch(s, jnp.asarray(a)), c_env.step_batch(s2, a)
     np.testing.assert_allclose(np.asarray(s.obs), s2.obs, atol=1e-3)
     np.testing.assert_allclose(np.asarray(s.reward), s2.reward, atol=1e-3)
+
+
+def _mjx_contact_slots(xml: str) -> int:
+    import mujoco
+    from mujoco import mjx
+
+    m = mujoco.MjModel.from_xml_string(xml)
+    return int(mjx.put_data(m, mujoco.MjData(m))._impl.ncon)
+
+
+@pytest.mark.parametrize("robot", ["Ball", "Car", "Drone", "Ant"])
+def test_circle_worlds_cap_mjx_contact_slots(robot):
+    """MJX's static contact slots: the Run world's count is what RUN_CONTACTS says, and the
+    Circle world carries that plus WALL_SLOTS instead of one set per robot geom x wall."""
+    run = mjcf.model_xml(mjcf_task(f"{robot}Run"))
+    circle = mjcf.model_xml(mjcf_task(f"{robot}Circle"))
+    assert "max_contact_points" not in run
+    assert _mjx_contact_slots(run) == mjcf.RUN_CONTACTS[robot]
+    assert _mjx_contact_slots(circle) == mjcf.CIRCLE_CONTACTS[robot]
+    uncapped = circle.replace(circle[circle.index("<custom>"):circle.index("</custom>") + 9], "")
+    assert _mjx_contact_slots(uncapped) > 2 * mjcf.CIRCLE_CONTACTS[robot]
+
+
+def mjcf_task(name):
+    from r2pac_jax.envs.bullet.tasks import make_task
+
+    return make_task(get_task(name))
+
+
+def _ball_into_a_corner(slots: int) -> float:
+    """BallCircle's ball pushed into a corner of the octagon until the floor and both walls hold
+    it: the largest |qpos| gap over 1 s between MJX with `slots` contact slots and C MuJoCo,
+    which ignores the cap and holds every contact."""
+    import mujoco
+    from mujoco import mjx
+
+    xml = mjcf.model_xml(mjcf_task("BallCircle")).replace(
+        f'data="{mjcf.CIRCLE_CONTACTS["Ball"]}"', f'data="{slots}"')
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    corner = np.array([np.cos(np.pi / 8), np.sin(np.pi / 8)])  # between the walls at 0 and 45 deg
+    d.qpos[:3] = [*(11.6 * corner), 0.5]  # the ball's centre meets both walls 12.34 m out
+    d.qvel[:2] = 2.0 * corner
+    ball = m.geom_bodyid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "ball")]
+    d.xfrc_applied[ball, :2] = 3.5 * corner  # the Ball's full push, into the corner
+    mujoco.mj_forward(m, d)
+    mx, dx = mjx.put_model(m), mjx.put_data(m, d)
+    step = jax.jit(lambda d: mjx.step(mx, d))
+    gap, most = 0.0, 0
+    for _ in range(60):
+        mujoco.mj_step(m, d)
+        dx = step(dx)
+        most = max(most, d.ncon)  # margin 0: every listed contact is active
+        gap = max(gap, float(np.max(np.abs(np.asarray(dx.qpos[:3]) - d.qpos[:3]))))
+    assert most == 3 and np.linalg.norm(d.qpos[:2]) < 12.4  # floor and both walls at once
+    return gap
+
+
+@pytest.mark.slow
+def test_capped_mjx_contacts_hold_a_ball_in_a_corner():
+    """The Ball's 3 slots are enough for its worst case, and one fewer would not be."""
+    assert mjcf.CIRCLE_CONTACTS["Ball"] == 3
+    # measured: 1.8e-6 with 3 slots (what every slot gives), 1.9e-3 with 2, 0.15 with 1
+    assert _ball_into_a_corner(3) < 1e-4
+    assert _ball_into_a_corner(2) > 5e-4

@@ -19,6 +19,12 @@ Where MuJoCo has no equivalent of Bullet's model (each gap is measured in benchm
   constraints with their default solref (time constant 0.02 s, clamped to two steps).
 - the Circle world's 8 walls are the planes of their inner faces (equivalent inside the
   octagon below the walls' 2 m top; see `model_xml`).
+- MJX's contact arrays are static: every robot geom x wall pair keeps its contact slots every
+  step, in contact or not (CarCircle 216 contacts against CarRun's 24, AntCircle 225 against 25),
+  and the constraint solver carries them all. The Circle worlds cap them with MJX's
+  `max_contact_points` (`CIRCLE_CONTACTS`: the Run world's count plus slots for the walls),
+  which keeps the deepest contacts; a contact farther than its margin exerts no force, so the
+  cap changes nothing while no more contacts than that are active at once. C MuJoCo ignores it.
 - collisions: robot-plane and robot-wall only (no self-collision; the original enables it for
   the Ant, whose legs rarely meet). The Drone's rotor discs do not collide: MJX (mujoco 4.0.0)
   has no box-cylinder test, and its plane-cylinder test reported a 9.5 cm penetration for a
@@ -229,6 +235,18 @@ def has_model(robot_name: str) -> bool:
     return robot_name in ROBOT_BODIES
 
 
+# MJX's contact slots in the Circle worlds (its `max_contact_points`, per condim group; each
+# robot's contacts form one group): the Run world's slots (the robot against the ground: a
+# sphere 1, the Drone's box 4, the Car's hull, boxes and wheel cylinders 24, the Ant's torso and
+# leg capsules 25; tests/test_bullet_mujoco.py counts them) plus room for the walls: a robot
+# meets at most two walls at once (the octagon's corners), the Ball at one point each, the
+# others' geoms at up to 4 points each. With every robot geom x wall pair, MJX would carry 9,
+# 216, 36 and 225 slots.
+WALL_SLOTS = {"Ball": 2, "Car": 16, "Drone": 8, "Ant": 16}
+RUN_CONTACTS = {"Ball": 1, "Car": 24, "Drone": 4, "Ant": 25}
+CIRCLE_CONTACTS = {r: RUN_CONTACTS[r] + WALL_SLOTS[r] for r in RUN_CONTACTS}
+
+
 def model_xml(task) -> str:
     """The MJCF of one Bullet task (a `tasks.BulletTask`): its world, its robot, its physics
     step (the sub-step `time_step`; the env steps `frame_skip` of them per control step)."""
@@ -257,6 +275,10 @@ def model_xml(task) -> str:
             walls += (f'<geom name="wall_{k}" type="plane" size="5 1 0.1" '
                       f'pos="{_v((11.9 * c, 11.9 * s, 1))}" zaxis="{_v((-c, -s, 0))}" '
                       f'contype="0" conaffinity="2" friction="{friction * WALL_FRICTION!r} 0 0"/>')
+    custom = ""
+    if task.world == "octagon":
+        custom = (f'<custom><numeric name="max_contact_points" '
+                  f'data="{CIRCLE_CONTACTS[robot]}"/></custom>')
     return (f'<mujoco model="{task.name}"><compiler angle="degree" autolimits="true"/>'
             f'<option timestep="{task.time_step!r}" gravity="0 0 -9.81" '
             f'integrator="{r.get("integrator", "Euler")}"/>'
@@ -264,7 +286,7 @@ def model_xml(task) -> str:
             f'<asset>{r.get("assets", "")}</asset>'
             f'<worldbody>{ground}{walls}{r["body"]}</worldbody>'
             f'<tendon>{r.get("tendons", "")}</tendon>'
-            f'<actuator>{r.get("actuators", "")}</actuator></mujoco>')
+            f'<actuator>{r.get("actuators", "")}</actuator>{custom}</mujoco>')
 
 
 def load_model(task):
