@@ -8,20 +8,23 @@ The Circle worlds cap MJX's static contact slots (`mjcf.CIRCLE_CONTACTS`, MJX's
 `mjx.step` (one physics sub-step, no task code, no policy) vmapped over `--batch` copies of the
 model's initial state under random controls, `--substeps` sub-steps per jitted call, median of 3
 calls after a compile-and-run call, for the model as built ("capped") and the same model with
-the cap removed ("uncapped"); one JSON line per (task, variant) is appended to --out.
+the cap removed ("uncapped"); one JSON line per (task, variant), with env_speed.py's machine
+fields, is printed and appended to --out.
 """
 from __future__ import annotations
 
 import argparse
-import json
-import platform
 import re
+import sys
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from env_speed import emit  # noqa: E402
 
 
 def physics_rate(xml: str, batch: int, substeps: int) -> dict:
@@ -69,13 +72,9 @@ def main() -> None:
             raise SystemExit(f"{name}: its model has no contact cap (only the Circle worlds do)")
         uncapped = re.sub(r"<custom>.*?</custom>", "", capped)
         for variant, xml in (("uncapped", uncapped), ("capped", capped)):
-            row = dict(task=name, variant=variant, batch=args.batch, substeps=args.substeps,
-                       **physics_rate(xml, args.batch, args.substeps),
-                       backend=jax.default_backend(), jax=jax.__version__,
-                       machine=platform.machine(), date=time.strftime("%Y-%m-%d %H:%M"))
-            print(json.dumps(row), flush=True)
-            with open(args.out, "a") as f:
-                f.write(json.dumps(row) + "\n")
+            emit(dict(kind="mjx_contact_cap", task=name, variant=variant, batch=args.batch,
+                      substeps=args.substeps, **physics_rate(xml, args.batch, args.substeps)),
+                 str(args.out))
 
 
 if __name__ == "__main__":
