@@ -201,3 +201,15 @@ def test_capped_mjx_contacts_hold_a_ball_in_a_corner():
     # measured: 1.8e-6 with 3 slots (what every slot gives), 1.9e-3 with 2, 0.15 with 1
     assert _ball_into_a_corner(3) < 1e-4
     assert _ball_into_a_corner(2) > 5e-4
+
+
+def test_contact_cap_benchmark_refuses_a_world_without_a_cap(tmp_path):
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "mjx_contact_cap.py"
+    r = subprocess.run([sys.executable, str(script), "--tasks", "BallRun",
+                        "--out", str(tmp_path / "x.jsonl")], capture_output=True, text=True)
+    assert r.returncode != 0
+    assert "BallRun: its model has no contact cap (only the Circle worlds do)" in r.stderr
+    assert not (tmp_path / "x.jsonl").exists()
