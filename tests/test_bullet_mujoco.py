@@ -155,8 +155,18 @@ def test_circle_worlds_cap_mjx_contact_slots(robot):
     assert "max_contact_points" not in run
     assert _mjx_contact_slots(run) == mjcf.RUN_CONTACTS[robot]
     assert _mjx_contact_slots(circle) == mjcf.CIRCLE_CONTACTS[robot]
-    uncapped = circle.replace(circle[circle.index("<custom>"):circle.index("</custom>") + 9], "")
+    uncapped = mjcf.model_xml(mjcf_task(f"{robot}Circle"), contact_slots=None)
+    assert "max_contact_points" not in uncapped
     assert _mjx_contact_slots(uncapped) > 2 * mjcf.CIRCLE_CONTACTS[robot]
+    # a cap caps: never more slots than the world has contacts to fill
+    capped_run = mjcf.model_xml(mjcf_task(f"{robot}Run"), contact_slots=2)
+    assert _mjx_contact_slots(capped_run) == min(2, mjcf.RUN_CONTACTS[robot])
+
+
+@pytest.mark.parametrize("bad", [0, -1, 2.5, True, "none"])
+def test_model_xml_refuses_a_bad_contact_cap(bad):
+    with pytest.raises(ValueError, match="contact_slots"):
+        mjcf.model_xml(mjcf_task("BallCircle"), contact_slots=bad)
 
 
 def mjcf_task(name):
@@ -172,9 +182,7 @@ def _ball_into_a_corner(slots: int) -> float:
     import mujoco
     from mujoco import mjx
 
-    xml = mjcf.model_xml(mjcf_task("BallCircle")).replace(
-        f'data="{mjcf.CIRCLE_CONTACTS["Ball"]}"', f'data="{slots}"')
-    m = mujoco.MjModel.from_xml_string(xml)
+    m = mjcf.load_model(mjcf_task("BallCircle"), contact_slots=slots)
     d = mujoco.MjData(m)
     corner = np.array([np.cos(np.pi / 8), np.sin(np.pi / 8)])  # between the walls at 0 and 45 deg
     d.qpos[:3] = [*(11.6 * corner), 0.5]  # the ball's centre meets both walls 12.34 m out

@@ -247,13 +247,25 @@ RUN_CONTACTS = {"Ball": 1, "Car": 24, "Drone": 4, "Ant": 25}
 CIRCLE_CONTACTS = {r: RUN_CONTACTS[r] + WALL_SLOTS[r] for r in RUN_CONTACTS}
 
 
-def model_xml(task) -> str:
+def model_xml(task, contact_slots="auto") -> str:
     """The MJCF of one Bullet task (a `tasks.BulletTask`): its world, its robot, its physics
-    step (the sub-step `time_step`; the env steps `frame_skip` of them per control step)."""
+    step (the sub-step `time_step`; the env steps `frame_skip` of them per control step).
+
+    `contact_slots` caps MJX's static contact slots (`max_contact_points`): "auto" is the
+    world's own (`CIRCLE_CONTACTS` in the Circle worlds, no cap in the Run worlds), None no
+    cap, an int n >= 1 a cap of n (tests and benchmarks/mjx_contact_cap.py vary it). C MuJoCo
+    ignores the cap."""
     robot = task.robot.name
     if robot not in ROBOT_BODIES:
         raise ValueError(f"no MuJoCo model of the {robot} (the models exist for "
                          f"{', '.join(ROBOT_BODIES)})")
+    if contact_slots == "auto":
+        contact_slots = CIRCLE_CONTACTS[robot] if task.world == "octagon" else None
+    elif contact_slots is not None and (isinstance(contact_slots, bool)
+                                        or not isinstance(contact_slots, int)
+                                        or contact_slots < 1):
+        raise ValueError(f"contact_slots={contact_slots!r}: give \"auto\" (the world's own "
+                         f"cap), None (no cap) or an int >= 1")
     r = ROBOT_BODIES[robot](task)
     # the world carries the robot's combined friction, or none where the robot's geoms carry
     # their own (the Car: wheels, chassis and payload differ)
@@ -276,9 +288,9 @@ def model_xml(task) -> str:
                       f'pos="{_v((11.9 * c, 11.9 * s, 1))}" zaxis="{_v((-c, -s, 0))}" '
                       f'contype="0" conaffinity="2" friction="{friction * WALL_FRICTION!r} 0 0"/>')
     custom = ""
-    if task.world == "octagon":
+    if contact_slots is not None:
         custom = (f'<custom><numeric name="max_contact_points" '
-                  f'data="{CIRCLE_CONTACTS[robot]}"/></custom>')
+                  f'data="{contact_slots}"/></custom>')
     return (f'<mujoco model="{task.name}"><compiler angle="degree" autolimits="true"/>'
             f'<option timestep="{task.time_step!r}" gravity="0 0 -9.81" '
             f'integrator="{r.get("integrator", "Euler")}"/>'
@@ -289,8 +301,8 @@ def model_xml(task) -> str:
             f'<actuator>{r.get("actuators", "")}</actuator>{custom}</mujoco>')
 
 
-def load_model(task):
-    """mujoco.MjModel of `model_xml(task)`."""
+def load_model(task, contact_slots="auto"):
+    """mujoco.MjModel of `model_xml(task, contact_slots)`."""
     import mujoco
 
-    return mujoco.MjModel.from_xml_string(model_xml(task))
+    return mujoco.MjModel.from_xml_string(model_xml(task, contact_slots))
