@@ -159,11 +159,11 @@ def test_circle_worlds_cap_mjx_contact_slots(robot):
     assert "max_contact_points" not in uncapped
     assert _mjx_contact_slots(uncapped) > 2 * mjcf.CIRCLE_CONTACTS[robot]
     # a cap caps: never more slots than the world has contacts to fill
-    capped_run = mjcf.model_xml(mjcf_task(f"{robot}Run"), contact_slots=2)
+    capped_run = mjcf.model_xml(mjcf_task(f"{robot}Run"), contact_slots=np.int64(2))
     assert _mjx_contact_slots(capped_run) == min(2, mjcf.RUN_CONTACTS[robot])
 
 
-@pytest.mark.parametrize("bad", [0, -1, 2.5, True, "none"])
+@pytest.mark.parametrize("bad", [0, -1, 2.5, True, "none", np.array([3])])
 def test_model_xml_refuses_a_bad_contact_cap(bad):
     with pytest.raises(ValueError, match="contact_slots"):
         mjcf.model_xml(mjcf_task("BallCircle"), contact_slots=bad)

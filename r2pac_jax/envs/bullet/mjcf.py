@@ -259,10 +259,10 @@ def model_xml(task, contact_slots="auto") -> str:
     if robot not in ROBOT_BODIES:
         raise ValueError(f"no MuJoCo model of the {robot} (the models exist for "
                          f"{', '.join(ROBOT_BODIES)})")
-    if contact_slots == "auto":
+    if isinstance(contact_slots, str) and contact_slots == "auto":
         contact_slots = CIRCLE_CONTACTS[robot] if task.world == "octagon" else None
-    elif contact_slots is not None and (isinstance(contact_slots, bool)
-                                        or not isinstance(contact_slots, int)
+    elif contact_slots is not None and (isinstance(contact_slots, (bool, np.bool_))
+                                        or not isinstance(contact_slots, (int, np.integer))
                                         or contact_slots < 1):
         raise ValueError(f"contact_slots={contact_slots!r}: give \"auto\" (the world's own "
                          f"cap), None (no cap) or an int >= 1")
@@ -290,7 +290,7 @@ def model_xml(task, contact_slots="auto") -> str:
     custom = ""
     if contact_slots is not None:
         custom = (f'<custom><numeric name="max_contact_points" '
-                  f'data="{contact_slots}"/></custom>')
+                  f'data="{int(contact_slots)}"/></custom>')
     return (f'<mujoco model="{task.name}"><compiler angle="degree" autolimits="true"/>'
             f'<option timestep="{task.time_step!r}" gravity="0 0 -9.81" '
             f'integrator="{r.get("integrator", "Euler")}"/>'
