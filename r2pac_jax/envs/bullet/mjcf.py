@@ -247,6 +247,12 @@ RUN_CONTACTS = {"Ball": 1, "Car": 24, "Drone": 4, "Ant": 25}
 CIRCLE_CONTACTS = {r: RUN_CONTACTS[r] + WALL_SLOTS[r] for r in RUN_CONTACTS}
 
 
+def world_contact_slots(task):
+    """The world's own MJX contact cap: `CIRCLE_CONTACTS` in the Circle worlds, None (no cap)
+    in the Run worlds."""
+    return CIRCLE_CONTACTS[task.robot.name] if task.world == "octagon" else None
+
+
 def model_xml(task, contact_slots="auto") -> str:
     """The MJCF of one Bullet task (a `tasks.BulletTask`): its world, its robot, its physics
     step (the sub-step `time_step`; the env steps `frame_skip` of them per control step).
@@ -260,7 +266,7 @@ def model_xml(task, contact_slots="auto") -> str:
         raise ValueError(f"no MuJoCo model of the {robot} (the models exist for "
                          f"{', '.join(ROBOT_BODIES)})")
     if isinstance(contact_slots, str) and contact_slots == "auto":
-        contact_slots = CIRCLE_CONTACTS[robot] if task.world == "octagon" else None
+        contact_slots = world_contact_slots(task)
     elif contact_slots is not None and (isinstance(contact_slots, (bool, np.bool_))
                                         or not isinstance(contact_slots, (int, np.integer))
                                         or contact_slots < 1):
