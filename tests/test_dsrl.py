@@ -142,3 +142,28 @@ def test_no_progress_hides_the_generation_bar_but_not_the_announcements(tmp_path
         assert ds.observations.shape[0] > 0
         assert said[0].startswith("dataset: none found for ReachAvoid; generating 12 trajectories")
         assert ("ReachAvoid data" in err) == progress, err
+
+
+def test_train_memory_benchmark_writes_a_valid_file_of_the_asked_shape(tmp_path):
+    """benchmarks/train_memory.py measures train on a synthetic file: it must load as a DSRL file
+    of the task's widths, with one episode per episode_len rows and next_observations shifted."""
+    import importlib.util
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "train_memory.py"
+    spec = importlib.util.spec_from_file_location("train_memory", script)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    task = get_task("PointGoal1")
+    p = tmp_path / "syn.hdf5"
+    size = mod.write_file(p, 5, 7, task.obs_dim, task.act_dim, block=2)  # written in blocks 2+2+1
+    assert size == p.stat().st_size > 0 and not p.with_suffix(".tmp").exists()
+    ds = load_dsrl(p, obs_dim=task.obs_dim, act_dim=task.act_dim)
+    assert ds.observations.shape == (35, task.obs_dim) and ds.actions.shape == (35, task.act_dim)
+    starts, ends = ds.episode_bounds()
+    np.testing.assert_array_equal(starts, np.arange(0, 35, 7))
+    np.testing.assert_array_equal(ends, np.arange(6, 35, 7))
+    within = np.ones(35, bool)
+    within[ends] = False  # inside an episode the next row's observation is this row's next one
+    np.testing.assert_array_equal(ds.next_observations[within], ds.observations[1:][within[:-1]])
+    assert not ds.terminals.any() and np.isin(ds.costs, [0.0, 1.0]).all()
