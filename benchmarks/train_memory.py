@@ -51,7 +51,10 @@ def write_file(path: Path, n_episodes: int, episode_len: int, obs_dim: int, act_
             d["next_observations"][a:b] = obs[1:]
             d["actions"][a:b] = rng.uniform(-1, 1, (b - a, act_dim)).astype(np.float32)
             d["rewards"][a:b] = rng.standard_normal(b - a, dtype=np.float32)
-            d["costs"][a:b] = (rng.random(b - a) < 0.05).astype(np.float32)
+            # per-episode cost rates 0-5%: episode costs 0-50 around kappa, so every algorithm
+            # finds the safe and unsafe episodes its data view needs (CDT's return target)
+            rate = np.repeat(rng.uniform(0, 0.05, e1 - e0), episode_len)
+            d["costs"][a:b] = (rng.random(b - a) < rate).astype(np.float32)
             d["terminals"][a:b] = False
             ends = np.zeros(b - a, bool)
             ends[episode_len - 1::episode_len] = True

@@ -167,3 +167,48 @@ def test_train_memory_benchmark_writes_a_valid_file_of_the_asked_shape(tmp_path)
     within[ends] = False  # inside an episode the next row's observation is this row's next one
     np.testing.assert_array_equal(ds.next_observations[within], ds.observations[1:][within[:-1]])
     assert not ds.terminals.any() and np.isin(ds.costs, [0.0, 1.0]).all()
+
+
+def test_blockwise_checks_find_the_same_rows_as_whole_array_ones(monkeypatch):
+    """validate checks in blocks (memory); with blocks of 3 rows the rows found, in order, must be
+    those of the whole-array formulas, across block edges, and a float32 array is not copied."""
+    from r2pac_jax.data import dsrl
+
+    rng = np.random.default_rng(0)
+    n, d = 20, 4
+    obs = rng.standard_normal((n, d)).astype(np.float32)
+    nxt = np.roll(obs, -1, axis=0)
+    ends = np.zeros(n, bool)
+    ends[[6, 13, n - 1]] = True
+    nxt[[2, 3, 5, 8, 12]] += 1.0  # 2, 3 and 5 straddle the first block edges; 12 before an end
+    nxt[ends] = 7.0  # not compared: the episode ends there
+    obs[[4, 17], 1] = np.nan
+    expected_nonfinite = np.flatnonzero(~np.isfinite(obs).all(axis=1))
+    monkeypatch.setattr(dsrl, "_CHECK_BLOCK", 3)
+    np.testing.assert_array_equal(dsrl._rows_not_finite(obs), expected_nonfinite)
+    np.testing.assert_array_equal(expected_nonfinite, [4, 17])
+    clean = np.nan_to_num(obs)
+    whole_gap = np.abs(nxt[:-1] - clean[1:]).max(axis=1) > 1e-4 * (1 + np.abs(clean[1:]).max(axis=1))
+    got = dsrl._unfollowed_rows(clean, nxt, ends)
+    np.testing.assert_array_equal(got, np.flatnonzero(whole_gap & ~ends[:-1]))
+    assert {2, 3, 5, 8, 12} <= set(got.tolist()) and not set(got.tolist()) & {6, 13}
+    arrays = toy_arrays()
+    arrays["observations"] = arrays["observations"].astype(np.float32)
+    assert validate(arrays).observations is arrays["observations"]
+
+
+def test_digest_is_the_sha256_of_the_arrays_bytes():
+    """digest hashes the buffers in place (no copy of a 1.5 GB array); the value must stay the
+    sha256 of the arrays' bytes in KEYS order, which manifests and resumed runs compare."""
+    import hashlib
+
+    from r2pac_jax.data.dsrl import KEYS
+
+    ds = validate(toy_arrays())
+    h = hashlib.sha256()
+    for k in KEYS:
+        h.update(np.ascontiguousarray(getattr(ds, k)).tobytes())
+    assert ds.digest() == h.hexdigest()
+    arrays = toy_arrays()
+    arrays["rewards"] = arrays["rewards"] + 1.0
+    assert validate(arrays).digest() != ds.digest()

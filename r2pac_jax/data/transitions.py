@@ -53,7 +53,8 @@ class TransitionBatch(NamedTuple):
 def transition_arrays(ds: Dataset, reward_scale: float = 1.0, cost_scale: float = 1.0,
                       done_rule: str = "terminal_or_timeout",
                       keep_episodes: Optional[np.ndarray] = None) -> dict:
-    """The numpy arrays of `build_transitions` (also used by tests)."""
+    """The numpy arrays of `build_transitions` (also used by tests); with every row kept they
+    share memory with `ds` (read them, never write to them)."""
     if done_rule not in DONE_RULES:
         raise ValueError(f"done_rule must be one of {DONE_RULES}, got {done_rule!r}")
     starts, ends = ds.episode_bounds()
@@ -62,13 +63,18 @@ def transition_arrays(ds: Dataset, reward_scale: float = 1.0, cost_scale: float 
     done = ds.terminals | ds.timeouts if done_rule == "terminal_or_timeout" else ds.terminals
     is_init = np.zeros(ds.size, bool)
     is_init[starts] = True
-    idx = np.flatnonzero(rows)
-    return dict(observations=ds.observations[idx].astype(np.float32),
-                next_observations=ds.next_observations[idx].astype(np.float32),
-                actions=ds.actions[idx].astype(np.float32),
-                rewards=(ds.rewards[idx].astype(np.float64) * reward_scale).astype(np.float32),
-                costs=(ds.costs[idx].astype(np.float64) * cost_scale).astype(np.float32),
-                done=done[idx].astype(np.float32), is_init=is_init[idx].astype(np.float32))
+    idx = None if rows.all() else np.flatnonzero(rows)
+
+    def kept(a, dtype=np.float32):
+        # every row kept: the file's own float32 arrays, not copies (a DSRL-size observation
+        # array is 1.5 GB, and the device holds another copy of it)
+        return (a if idx is None else a[idx]).astype(dtype, copy=False)
+
+    return dict(observations=kept(ds.observations), next_observations=kept(ds.next_observations),
+                actions=kept(ds.actions),
+                rewards=(kept(ds.rewards, np.float64) * reward_scale).astype(np.float32),
+                costs=(kept(ds.costs, np.float64) * cost_scale).astype(np.float32),
+                done=kept(done), is_init=kept(is_init))
 
 
 def build_transitions(ds: Dataset, reward_scale: float = 1.0, cost_scale: float = 1.0,
