@@ -29,7 +29,10 @@ import numpy as np
 def write_file(path: Path, n_episodes: int, episode_len: int, obs_dim: int, act_dim: int,
                seed: int = 0, block: int = 100) -> int:
     """A DSRL-format HDF5 file of n_episodes x episode_len transitions, written block by block
-    (uncompressed: random floats do not compress, and the loader reads either). Returns bytes."""
+    (uncompressed: random floats do not compress, and the loader reads either). Returns bytes.
+
+    Not `dsrl.write_dsrl`, which needs the whole dataset in memory: this process must stay small,
+    since on Linux a child's peak RSS counts its parent's RSS at the fork."""
     import h5py
 
     rng = np.random.default_rng(seed)

@@ -93,6 +93,9 @@ def test_transitions_follow_osrls_done_rule_and_filter_episodes():
         [0, 0, 0, 0, 0, 0, 1, 0, 0]
     assert osrl["is_init"].tolist() == [1, 0, 0, 0, 1, 0, 0, 1, 0]
     np.testing.assert_allclose(osrl["rewards"], ds.rewards * 0.1, rtol=1e-6)
+    assert osrl["observations"] is ds.observations  # every row kept: the file's array, no copy
+    every = transitions.transition_arrays(ds, reward_scale=0.1, keep_episodes=np.ones(3, bool))
+    assert all(np.array_equal(every[k], osrl[k]) for k in osrl)
     kept = transitions.build_transitions(ds, keep_episodes=np.array([False, True, True]))
     assert kept.size == 5 and np.asarray(kept.init_index).tolist() == [0, 3]
     b = transitions.sample(kept, jax.random.PRNGKey(0), 64)

@@ -58,12 +58,11 @@ def transition_arrays(ds: Dataset, reward_scale: float = 1.0, cost_scale: float 
     if done_rule not in DONE_RULES:
         raise ValueError(f"done_rule must be one of {DONE_RULES}, got {done_rule!r}")
     starts, ends = ds.episode_bounds()
-    ep_id = np.repeat(np.arange(len(ends)), ends - starts + 1)
-    rows = np.ones(ds.size, bool) if keep_episodes is None else keep_episodes[ep_id]
     done = ds.terminals | ds.timeouts if done_rule == "terminal_or_timeout" else ds.terminals
     is_init = np.zeros(ds.size, bool)
     is_init[starts] = True
-    idx = None if rows.all() else np.flatnonzero(rows)
+    idx = (None if keep_episodes is None or keep_episodes.all()
+           else np.flatnonzero(np.repeat(keep_episodes, ends - starts + 1)))  # the kept rows
 
     def kept(a, dtype=np.float32):
         # every row kept: the file's own float32 arrays, not copies (a DSRL-size observation
