@@ -90,9 +90,12 @@ def main() -> None:
     from r2pac_jax.tasks import get_task
 
     task = get_task(args.task)
-    n = args.trajectories or (task.collection.trajectories if task.collection else None)
-    if not n or n < 1:
+    n = args.trajectories if args.trajectories is not None else (
+        task.collection.trajectories if task.collection else None)
+    if n is None:
         ap.error(f"--trajectories: {args.task} has no DSRL count; pass a positive number")
+    if n < 1:
+        ap.error(f"--trajectories must be a positive number of episodes, got {n}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{task.name}-synthetic-n{n}.hdf5"

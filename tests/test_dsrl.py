@@ -169,6 +169,23 @@ def test_train_memory_benchmark_writes_a_valid_file_of_the_asked_shape(tmp_path)
     assert not ds.terminals.any() and np.isin(ds.costs, [0.0, 1.0]).all()
 
 
+def test_train_memory_benchmark_refuses_a_non_positive_size(tmp_path, monkeypatch, capsys):
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "train_memory.py"
+    spec = importlib.util.spec_from_file_location("train_memory", script)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    monkeypatch.setattr(sys, "argv", ["train_memory.py", "--task", "PointGoal1",
+                                      "--trajectories", "0", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit):
+        mod.main()
+    assert "--trajectories must be a positive number of episodes, got 0" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.hdf5"))
+
+
 def test_blockwise_checks_find_the_same_rows_as_whole_array_ones(monkeypatch):
     """validate checks in blocks (memory); with blocks of 3 rows the rows found, in order, must be
     those of the whole-array formulas, across block edges, and a float32 array is not copied."""
