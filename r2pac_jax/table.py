@@ -15,7 +15,8 @@ every algorithm on the first task and prints the wall estimate, then stops.
 
 A table made in pieces (sessions, machines, a second directory beside a running one):
 `--merge-from SRC` first brings SRC's finished cells and its manifest's tasks into DIR (same
-preset, seeds and episodes, no task on other data; DIR's own cells win); `--table-only` runs
+preset, seeds and episodes, no task on other data; DIR's own cells win; `--results-only` copies
+each cell's results.json and config.json alone, the light copy a repository keeps); `--table-only` runs
 nothing and writes the table from DIR's finished cells of `--algos` (without `--algos`: of
 every algorithm with one, in the paper's column order), for `--tasks` or every task in DIR's
 manifest.
@@ -87,6 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--merge-from", action="append", default=[], metavar="SRC",
                     help="a table directory whose finished cells and tasks join --out first "
                          "(repeatable)")
+    ap.add_argument("--results-only", action="store_true", help="with --merge-from: copy each "
+                    "cell's results.json and config.json only (a light table to commit)")
     ap.add_argument("--table-only", action="store_true", help="train nothing: the table from "
                     "the finished cells in --out")
     ap.add_argument("--no-progress", action="store_true")
@@ -189,7 +192,12 @@ def merge_from(out: Path, src: Path, args, log) -> int:
     """Bring SRC's finished cells (TASK/ALGO with a results.json) and its manifest's tasks into
     OUT, where OUT lacks them; the number of cells copied. Refuses SRC or OUT of another preset,
     seeds or episodes, and a task whose data differ between the two. An unfinished run in OUT is
-    kept (it resumes), even where SRC has that cell finished."""
+    kept (it resumes), even where SRC has that cell finished. `args.results_only`: a cell's
+    results.json and config.json only (no checkpoints, policy or logs).
+
+    OUT's manifest is read and rewritten here, at the merge, so two table directories merged
+    into one OUT in turn both keep their tasks (copying a manifest over OUT's would drop the
+    tasks another merge had added since)."""
     import shutil
 
     from r2pac_jax.config import ConfigError
@@ -206,6 +214,12 @@ def merge_from(out: Path, src: Path, args, log) -> int:
     _check_same_data(ours["datasets"], theirs["datasets"], out, f"{src} holds them on")
     merged = {**theirs["datasets"], **ours["datasets"]}
     _check_one_version(merged)
+    light = {"results.json", "config.json"}
+    if getattr(args, "results_only", False):
+        def keep(d, names):  # the cell's top level: its two files; below it: nothing
+            return [n for n in names if Path(d) != cell or n not in light]
+    else:
+        keep = shutil.ignore_patterns(".lock")
     copied = 0
     for t in theirs["datasets"]:
         for cell in sorted(p for p in (src / t).glob("*") if (p / "results.json").is_file()):
@@ -219,7 +233,7 @@ def merge_from(out: Path, src: Path, args, log) -> int:
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 shutil.rmtree(tmp, ignore_errors=True)
                 try:
-                    shutil.copytree(cell, tmp, ignore=shutil.ignore_patterns(".lock"))
+                    shutil.copytree(cell, tmp, ignore=keep)
                     tmp.rename(dest)  # a cell appears whole or not at all
                 finally:
                     shutil.rmtree(tmp, ignore_errors=True)
@@ -323,6 +337,9 @@ def main(argv=None) -> int:
         out = Path(args.out)
         if out.exists() and not out.is_dir():
             raise ConfigError(f"--out {out} is a file, not a directory")
+        if args.results_only and not args.merge_from:
+            raise ConfigError("--results-only says how --merge-from copies cells: give "
+                              "--merge-from SRC too")
         if args.merge_from:  # --table-only alone reads an existing table and creates nothing
             out.mkdir(parents=True, exist_ok=True)
         for src in args.merge_from:

@@ -191,3 +191,38 @@ def test_found_columns_follow_the_papers_order():
                          "coptidice", "bc-all-mlp"]) == [
         "bc-safe", "bc-all-mlp", "cpq", "coptidice", "bcq-lag", "cdt", "fisor", "r2pac",
         "r2pac-hj"]
+
+
+def _light_table(root, task, algo, sha="1"):
+    """A table directory by hand: one finished cell (results, config and a checkpoint)."""
+    cell = root / task / algo
+    (cell / "checkpoints" / "20").mkdir(parents=True)
+    (cell / "checkpoints" / "20" / "state").write_text("weights")
+    (cell / "results.json").write_text(json.dumps(_r(0.5, 0.1)))
+    (cell / "config.json").write_text("{}")
+    (root / "manifest.json").write_text(json.dumps(dict(
+        preset="quick", seeds=2, episodes=2, steps=None,
+        datasets={task: dict(file=f"{task}.hdf5", version="learned-v2", sha256=sha * 64)})))
+    return root
+
+
+def test_results_only_merges_keep_every_source_task_and_copy_two_files(tmp_path, capsys):
+    """Two chains write back into one kept table in turn: both tasks stay in its manifest (a
+    manifest copied over the kept one dropped the other's task), and a cell arrives as its
+    results.json and config.json only."""
+    a = _light_table(tmp_path / "a", "CarCircle", "r2pac")
+    b = _light_table(tmp_path / "b", "AntRun", "cpq", sha="2")
+    keep = tmp_path / "keep"
+    only = ["--algos", "r2pac,cpq", "--table-only", "--seeds", "2", "--preset", "quick",
+            "--episodes", "2", "--out", str(keep), "--results-only", "--no-progress"]
+    assert main([*only, "--merge-from", str(a)]) == 0
+    assert main([*only, "--merge-from", str(b)]) == 0
+    assert sorted(json.loads((keep / "manifest.json").read_text())["datasets"]) == [
+        "AntRun", "CarCircle"]
+    md = (keep / "table.md").read_text()
+    assert "| CarCircle |" in md and "| AntRun |" in md
+    for cell in (keep / "CarCircle" / "r2pac", keep / "AntRun" / "cpq"):
+        assert sorted(p.name for p in cell.iterdir()) == ["config.json", "results.json"]
+    capsys.readouterr()
+    assert main(only) == 2  # --results-only without --merge-from: refused, named
+    assert "give --merge-from SRC too" in capsys.readouterr().err

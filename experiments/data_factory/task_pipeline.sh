@@ -58,15 +58,11 @@ for t in "$@"; do
   python -m r2pac_jax.table --tasks "$t" --algos "$ALGOS" --seeds 3 --episodes 20 \
     --out "$TABLE_OUT" --merge-from "$TABLE_KEEP" --no-progress || echo "!! $t: table failed"
   # back into the committed table, finished cells only (a failed or partial table keeps the
-  # cells it finished): each cell's results and config, and the manifest
-  (cd "$TABLE_OUT" && find . -maxdepth 3 \( -name results.json -o -path './manifest.json' \) \
-     -print) | while read -r x; do
-    d=$(dirname "$x")
-    mkdir -p "$TABLE_KEEP/$d" && cp "$TABLE_OUT/$x" "$TABLE_KEEP/$x"
-    [ "$(basename "$x")" = results.json ] && cp "$TABLE_OUT/$d/config.json" "$TABLE_KEEP/$d/"
-  done
-  # the committed table, every column that has cells (bcq-lag's made apart included)
+  # cells it finished), each as its results and config; the manifest is merged, not copied,
+  # so a chain running beside this one keeps its task; then the committed table, every column
+  # that has cells (bcq-lag's made apart included)
   python -m r2pac_jax.table --table-only --algos "$TABLE_COLUMNS" --seeds 3 --episodes 20 \
-    --out "$TABLE_KEEP" --no-progress | tail -2 || echo "!! $t: table-only failed"
+    --out "$TABLE_KEEP" --merge-from "$TABLE_OUT" --results-only --no-progress | tail -2 \
+    || echo "!! $t: table-only failed"
 done
 echo "== pipeline done $(date -u +%FT%TZ)"
