@@ -16,10 +16,10 @@ every algorithm on the first task and prints the wall estimate, then stops.
 A table made in pieces (sessions, machines, a second directory beside a running one):
 `--merge-from SRC` first brings SRC's finished cells and its manifest's tasks into DIR (same
 preset, seeds and episodes, no task on other data; DIR's own cells win; `--results-only` copies
-each cell's results.json and config.json alone, the light copy a repository keeps); `--table-only` runs
-nothing and writes the table from DIR's finished cells of `--algos` (without `--algos`: of
-every algorithm with one, in the paper's column order), for `--tasks` or every task in DIR's
-manifest.
+each cell's results.json and config.json alone, the light copy a repository keeps);
+`--table-only` runs nothing and writes the table from DIR's finished cells of `--algos`
+(without `--algos`: of every algorithm with one, in the paper's column order), for `--tasks` or
+every task in DIR's manifest.
 """
 from __future__ import annotations
 
@@ -214,10 +214,9 @@ def merge_from(out: Path, src: Path, args, log) -> int:
     _check_same_data(ours["datasets"], theirs["datasets"], out, f"{src} holds them on")
     merged = {**theirs["datasets"], **ours["datasets"]}
     _check_one_version(merged)
-    light = {"results.json", "config.json"}
     if getattr(args, "results_only", False):
-        def keep(d, names):  # the cell's top level: its two files; below it: nothing
-            return [n for n in names if Path(d) != cell or n not in light]
+        def keep(d, names):  # every folder is left out at the cell's top: nothing below is read
+            return [n for n in names if n not in ("results.json", "config.json")]
     else:
         keep = shutil.ignore_patterns(".lock")
     copied = 0
