@@ -214,7 +214,7 @@ def merge_from(out: Path, src: Path, args, log) -> int:
     _check_same_data(ours["datasets"], theirs["datasets"], out, f"{src} holds them on")
     merged = {**theirs["datasets"], **ours["datasets"]}
     _check_one_version(merged)
-    if getattr(args, "results_only", False):
+    if args.results_only:
         def keep(d, names):  # every folder is left out at the cell's top: nothing below is read
             return [n for n in names if n not in ("results.json", "config.json")]
     else:

@@ -144,9 +144,8 @@ def test_no_progress_hides_the_generation_bar_but_not_the_announcements(tmp_path
         assert ("ReachAvoid data" in err) == progress, err
 
 
-def test_train_memory_benchmark_writes_a_valid_file_of_the_asked_shape(tmp_path):
-    """benchmarks/train_memory.py measures train on a synthetic file: it must load as a DSRL file
-    of the task's widths, with one episode per episode_len rows and next_observations shifted."""
+def _train_memory_script():
+    """benchmarks/train_memory.py as a module (a script, not part of the package)."""
     import importlib.util
     from pathlib import Path
 
@@ -154,6 +153,13 @@ def test_train_memory_benchmark_writes_a_valid_file_of_the_asked_shape(tmp_path)
     spec = importlib.util.spec_from_file_location("train_memory", script)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
+    return mod
+
+
+def test_train_memory_benchmark_writes_a_valid_file_of_the_asked_shape(tmp_path):
+    """benchmarks/train_memory.py measures train on a synthetic file: it must load as a DSRL file
+    of the task's widths, with one episode per episode_len rows and next_observations shifted."""
+    mod = _train_memory_script()
     task = get_task("PointGoal1")
     p = tmp_path / "syn.hdf5"
     size = mod.write_file(p, 5, 7, task.obs_dim, task.act_dim, block=2)  # written in blocks 2+2+1
@@ -170,14 +176,9 @@ def test_train_memory_benchmark_writes_a_valid_file_of_the_asked_shape(tmp_path)
 
 
 def test_train_memory_benchmark_refuses_a_non_positive_size(tmp_path, monkeypatch, capsys):
-    import importlib.util
     import sys
-    from pathlib import Path
 
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "train_memory.py"
-    spec = importlib.util.spec_from_file_location("train_memory", script)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = _train_memory_script()
     monkeypatch.setattr(sys, "argv", ["train_memory.py", "--task", "PointGoal1",
                                       "--trajectories", "0", "--out", str(tmp_path)])
     with pytest.raises(SystemExit):

@@ -139,19 +139,25 @@ def test_merge_from_joins_tables_and_table_only_trains_nothing(tmp_path, data_di
     assert "holds no table" in capsys.readouterr().err and not (tmp_path / "e").exists()
 
 
+def _light_table(root, task, algo, sha="1"):
+    """A table directory by hand: one finished cell (results, config and a checkpoint)."""
+    cell = root / task / algo
+    (cell / "checkpoints" / "20").mkdir(parents=True)
+    (cell / "checkpoints" / "20" / "state").write_text("weights")
+    (cell / "results.json").write_text(json.dumps(_r(0.5, 0.1)))
+    (cell / "config.json").write_text("{}")
+    (root / "manifest.json").write_text(json.dumps(dict(
+        preset="quick", seeds=2, episodes=2, steps=None,
+        datasets={task: dict(file=f"{task}.hdf5", version="learned-v2", sha256=sha * 64)})))
+    return root
+
+
 def test_merge_on_a_full_disk_says_so_and_leaves_no_partial_cell(tmp_path, monkeypatch, capsys):
     """ENOSPC while a cell is copied: one line naming the cell, nothing half-copied left."""
     import errno
     import shutil
 
-    src = tmp_path / "src"
-    cell = src / "ReachAvoid" / "bc-all-mlp"
-    cell.mkdir(parents=True)
-    (cell / "results.json").write_text(json.dumps(_r(0.5, 0.1)))
-    (cell / "config.json").write_text("{}")
-    (src / "manifest.json").write_text(json.dumps(dict(
-        preset="quick", seeds=2, episodes=2, steps=None,
-        datasets={"ReachAvoid": dict(file="ra.hdf5", version="scripted-v1", sha256="1" * 64)})))
+    src = _light_table(tmp_path / "src", "ReachAvoid", "bc-all-mlp")
 
     def full(a, b, **kw):  # the disk fills after the first file of the copy
         b.mkdir()
@@ -191,19 +197,6 @@ def test_found_columns_follow_the_papers_order():
                          "coptidice", "bc-all-mlp"]) == [
         "bc-safe", "bc-all-mlp", "cpq", "coptidice", "bcq-lag", "cdt", "fisor", "r2pac",
         "r2pac-hj"]
-
-
-def _light_table(root, task, algo, sha="1"):
-    """A table directory by hand: one finished cell (results, config and a checkpoint)."""
-    cell = root / task / algo
-    (cell / "checkpoints" / "20").mkdir(parents=True)
-    (cell / "checkpoints" / "20" / "state").write_text("weights")
-    (cell / "results.json").write_text(json.dumps(_r(0.5, 0.1)))
-    (cell / "config.json").write_text("{}")
-    (root / "manifest.json").write_text(json.dumps(dict(
-        preset="quick", seeds=2, episodes=2, steps=None,
-        datasets={task: dict(file=f"{task}.hdf5", version="learned-v2", sha256=sha * 64)})))
-    return root
 
 
 def test_results_only_merges_keep_every_source_task_and_copy_two_files(tmp_path, capsys):
