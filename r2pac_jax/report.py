@@ -54,8 +54,9 @@ def results_table(cells: dict[str, dict[str, dict]], columns: Sequence[str] | No
     cells[task][algo] = results.json-like dict with `normalized_reward` / `normalized_cost`
     holding `mean` (None when every seed diverged) and `std`. Safe agents (cost < 1) are
     **bold**; among them the best reward is marked ★ and the second best ☆; unsafe entries
-    are plain with † after the cost (the paper greys them; Markdown has no grey). With
-    `families` ({task: family}), one average row per family follows the tasks.
+    are plain with † after the cost (the paper greys them; Markdown has no grey). A cell not
+    run shows – (a partial table says so rather than leaving blanks). With `families`
+    ({task: family}), one average row per family follows the tasks.
     """
     if columns is None:
         seen: list[str] = []
@@ -65,6 +66,7 @@ def results_table(cells: dict[str, dict[str, dict]], columns: Sequence[str] | No
     head = "| Task | " + " | ".join(f"{a} reward ↑ | {a} cost ↓" for a in columns) + " |"
     sep = "|---|" + "---|---|" * len(columns)
     lines = [head, sep]
+    missing = False
     rows = dict(cells)
     if families:
         rows.update(_family_rows(cells, columns, families))
@@ -74,7 +76,8 @@ def results_table(cells: dict[str, dict[str, dict]], columns: Sequence[str] | No
         for a in columns:
             r = row.get(a)
             if r is None:
-                parts += ["", ""]
+                missing = True
+                parts += ["–", "–"]
                 continue
             nr, nc = r["normalized_reward"], r["normalized_cost"]
             if nr["mean"] is None or nc["mean"] is None:
@@ -96,7 +99,9 @@ def results_table(cells: dict[str, dict[str, dict]], columns: Sequence[str] | No
     lines.append("Mean ± std over seeds of the per-seed means over evaluation episodes. **Bold**: "
                  "safe (normalised cost < 1); ★ / ☆: the safe agents with the highest and "
                  "second-highest reward; †: unsafe." + (" Family rows average the tasks' means."
-                                                         if families else ""))
+                                                         if families else "")
+                 + (" –: no finished cell (not run; in a family row: not run on every task of "
+                    "the family); ★ / ☆ rank the cells present." if missing else ""))
     return "\n".join(lines)
 
 
