@@ -100,8 +100,9 @@ def results_table(cells: dict[str, dict[str, dict]], columns: Sequence[str] | No
                  "safe (normalised cost < 1); ★ / ☆: the safe agents with the highest and "
                  "second-highest reward; †: unsafe." + (" Family rows average the tasks' means."
                                                          if families else "")
-                 + (" –: no finished cell (not run; in a family row: not run on every task of "
-                    "the family); ★ / ☆ rank the cells present." if missing else ""))
+                 + (" –: no finished cell (not run; in a family row: not run, or diverged, on "
+                    "one of the family's tasks); ★ / ☆ rank the cells present." if missing
+                    else ""))
     return "\n".join(lines)
 
 
