@@ -75,7 +75,7 @@ def compare(paper: dict, ours: dict) -> str:
         for c in algos:
             p = paper[task][c]
             o = ours[task].get(COLUMNS[c])
-            row += [fmt(*p), fmt(o[0], o[1]) if o else ""]
+            row += [fmt(*p), fmt(o[0], o[1]) if o else "–"]
             if o:
                 total += 1
                 agree += (p[1] < 1) == (o[1] < 1)
@@ -83,7 +83,8 @@ def compare(paper: dict, ours: dict) -> str:
     lines.append("")
     lines.append(f"Normalised reward / cost; **bold** safe (cost < 1), † unsafe. Paper: DSRL's data, "
                  f"each method's published budget; here: this project's data v2, CPU quick preset. "
-                 f"The safe/unsafe verdict is the same in {agree} of {total} cells.")
+                 f"The safe/unsafe verdict is the same in {agree} of {total} cells; –: not run here "
+                 f"yet.")
     missing = sorted(t for t in ours if t not in paper)
     if missing:
         lines.append(f"Tasks of ours outside the paper's table: {', '.join(missing)}.")
