@@ -84,7 +84,7 @@ def compare(paper: dict, ours: dict) -> str:
     lines.append(f"Normalised reward / cost; **bold** safe (cost < 1), † unsafe. Paper: DSRL's data, "
                  f"each method's published budget; here: this project's data v2, CPU quick preset. "
                  f"The safe/unsafe verdict is the same in {agree} of {total} cells; –: not run here "
-                 f"yet.")
+                 "yet.")
     missing = sorted(t for t in ours if t not in paper)
     if missing:
         lines.append(f"Tasks of ours outside the paper's table: {', '.join(missing)}.")
