@@ -1,7 +1,9 @@
 import atexit
+import importlib.util
 import os
 import shutil
 import tempfile
+from pathlib import Path
 
 os.environ.setdefault("R2PAC_NO_TENSORBOARD", "1")
 # Tests never touch the user's dataset caches (a CLI test that makes data would otherwise leave
@@ -26,6 +28,21 @@ TINY = dict(steps=20, batch_size=32, hidden_dims=(16, 16), actor_hidden_dims=(16
             critic_hidden_dims=(16, 16), actor_hidden=16, actor_blocks=1, critic_batch=16,
             # CDT's transformer
             embedding_dim=16, num_heads=2, num_layers=1)
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def load_script(relpath: str, name: str | None = None):
+    """A script outside the package (benchmarks/, experiments/) as a fresh module object.
+
+    `relpath` is relative to the repository root; each call executes the file anew, so a test
+    that monkeypatches module globals cannot leak into another test's copy."""
+    path = ROOT / relpath
+    spec = importlib.util.spec_from_file_location(name or path.stem, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
 def tiny_config(algo="r2pac", task="ReachAvoid", **kw):

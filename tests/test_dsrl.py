@@ -146,14 +146,9 @@ def test_no_progress_hides_the_generation_bar_but_not_the_announcements(tmp_path
 
 def _train_memory_script():
     """benchmarks/train_memory.py as a module (a script, not part of the package)."""
-    import importlib.util
-    from pathlib import Path
+    from conftest import load_script
 
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "train_memory.py"
-    spec = importlib.util.spec_from_file_location("train_memory", script)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("benchmarks/train_memory.py")
 
 
 def test_train_memory_benchmark_writes_a_valid_file_of_the_asked_shape(tmp_path):

@@ -10,20 +10,12 @@ They run the harness of benchmarks/fidelity_nav/compare.py (C MuJoCo: 3 x 400-st
 1000 layouts per task; MJX: CarGoal2, 2 x 60 steps) and assert the tolerances stated in
 benchmarks/FIDELITY.md ("Navigation tasks"), where each is explained.
 """
-import importlib.util
-from pathlib import Path
-
 import pytest
-
-ROOT = Path(__file__).resolve().parent.parent
+from conftest import load_script
 
 
 def _load_compare():
-    spec = importlib.util.spec_from_file_location(
-        "fidelity_nav_compare", ROOT / "benchmarks" / "fidelity_nav" / "compare.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("benchmarks/fidelity_nav/compare.py", "fidelity_nav_compare")
 
 
 @pytest.fixture(scope="module")

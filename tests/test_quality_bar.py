@@ -1,19 +1,16 @@
 """The quality-bar script's verdict and its accumulating report (issue 5)."""
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
+from conftest import ROOT, load_script
 
-SCRIPT = Path(__file__).resolve().parents[1] / "experiments" / "data_factory" / "quality_bar.py"
+SCRIPT = "experiments/data_factory/quality_bar.py"
+NEXT_TASKS = "experiments/data_factory/next_tasks.py"
 
 
 @pytest.fixture(scope="module")
 def qb():
-    spec = importlib.util.spec_from_file_location("quality_bar", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script(SCRIPT)
 
 
 def _res(reward, cost):
@@ -143,9 +140,7 @@ def test_the_v2_chain_covers_every_task_with_a_learned_source_and_skips_finished
     from r2pac_jax.data import factory
     from r2pac_jax.tasks import TASKS
 
-    spec = importlib.util.spec_from_file_location("next_tasks", SCRIPT.with_name("next_tasks.py"))
-    nt = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(nt)
+    nt = load_script(NEXT_TASKS)
     order = nt.ordered_tasks()
     assert len(order) == len(set(order))
     wanted = {n for n, t in TASKS.items()
@@ -168,9 +163,7 @@ def test_a_budget_fitted_to_a_session_is_below_dsrls_and_named_in_the_file(tmp_p
     from r2pac_jax.tasks import get_task
 
     monkeypatch.setenv("R2PAC_DATA_DIR", str(tmp_path))
-    spec = importlib.util.spec_from_file_location("next_tasks", SCRIPT.with_name("next_tasks.py"))
-    nt = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(nt)
+    nt = load_script(NEXT_TASKS)
     t = get_task("CarButton2")
     dsrl = t.collection.env_steps
     assert nt.plan("CarButton2") == (dsrl, factory.learned_path(t))
@@ -186,9 +179,7 @@ def test_a_budget_fitted_to_a_session_is_below_dsrls_and_named_in_the_file(tmp_p
     nt.plan("AntCircle", hours=0.5)  # 5,728 episodes of 500 steps do not fit
     assert "below the target 5,728" in capsys.readouterr().err
     # the quality bar finds the fitted file (complete: it has its card) when it is the only one
-    qbm = importlib.util.module_from_spec(
-        importlib.util.spec_from_file_location("qb2", SCRIPT))
-    qbm.__spec__.loader.exec_module(qbm)
+    qbm = load_script(SCRIPT, "qb2")
     assert qbm.learned_file("CarButton2") is None
     path.write_bytes(b"")
     factory.card_path(path).write_text("{}")
@@ -199,6 +190,6 @@ def test_plan_refuses_non_positive_hours_with_a_clear_message():
     import subprocess
     import sys
 
-    r = subprocess.run([sys.executable, str(SCRIPT.with_name("next_tasks.py")), "--plan",
+    r = subprocess.run([sys.executable, str(ROOT / NEXT_TASKS), "--plan",
                         "CarButton2", "--hours", "0"], capture_output=True, text=True)
     assert r.returncode == 2 and "must be > 0, got 0.0" in r.stderr and not r.stdout

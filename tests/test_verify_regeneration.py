@@ -1,23 +1,17 @@
 """verify_regeneration.py: a regenerated file against its pinned array digest, log and card."""
 import gzip
-import importlib.util
 import json
 from pathlib import Path
 
 import numpy as np
 
+from conftest import load_script
 from r2pac_jax.data import write_dsrl
 from r2pac_jax.tasks import get_task
 
-SCRIPT = (Path(__file__).resolve().parents[1] / "experiments" / "data_factory"
-          / "verify_regeneration.py")
-
 
 def _mod():
-    spec = importlib.util.spec_from_file_location("verify_regeneration", SCRIPT)
-    m = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(m)
-    return m
+    return load_script("experiments/data_factory/verify_regeneration.py")
 
 
 def _arrays(reward):
