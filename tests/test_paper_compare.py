@@ -11,7 +11,7 @@ PAPER = "\n".join([
     "Table 1: Normalized DSRL (Liu et al., 2023a) benchmark results.",
     "",
     "\tBC\t\tCDT\t\tCPQ\t\tCOptiDICE\t\tTREBI\t\tFISOR\t\tours\t",
-    "Task\treward\tcost" * 1 + "\treward\tcost" * 6,
+    "Task" + "\treward\tcost" * 7,
     "CarRun\t0.97\t0.33\t0.99\t0.65\t0.85\t0.00\t0.93\t0.00\t0.97\t0.23\t0.73\t0.14\t0.95\t0.80",
     "AntVel\t0.85\t16.21\t0.98\t0.91\t-1.01\t0.00\t1.00\t3.28\t0.31\t0.00\t0.89\t0.00\t0.90\t0.58",
     "Average\t0.1\t0.2\t0.1\t0.2\t0.1\t0.2\t0.1\t0.2\t0.1\t0.2\t0.1\t0.2\t0.1\t0.2",
