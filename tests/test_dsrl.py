@@ -2,7 +2,7 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import toy_arrays
+from conftest import load_script, toy_arrays
 from r2pac_jax.data.dsrl import (DatasetError, find_dsrl_file, load_dsrl, validate, write_dsrl)
 from r2pac_jax.tasks import get_task
 
@@ -144,17 +144,10 @@ def test_no_progress_hides_the_generation_bar_but_not_the_announcements(tmp_path
         assert ("ReachAvoid data" in err) == progress, err
 
 
-def _train_memory_script():
-    """benchmarks/train_memory.py as a module (a script, not part of the package)."""
-    from conftest import load_script
-
-    return load_script("benchmarks/train_memory.py")
-
-
 def test_train_memory_benchmark_writes_a_valid_file_of_the_asked_shape(tmp_path):
     """benchmarks/train_memory.py measures train on a synthetic file: it must load as a DSRL file
     of the task's widths, with one episode per episode_len rows and next_observations shifted."""
-    mod = _train_memory_script()
+    mod = load_script("benchmarks/train_memory.py")
     task = get_task("PointGoal1")
     p = tmp_path / "syn.hdf5"
     size = mod.write_file(p, 5, 7, task.obs_dim, task.act_dim, block=2)  # written in blocks 2+2+1
@@ -173,7 +166,7 @@ def test_train_memory_benchmark_writes_a_valid_file_of_the_asked_shape(tmp_path)
 def test_train_memory_benchmark_refuses_a_non_positive_size(tmp_path, monkeypatch, capsys):
     import sys
 
-    mod = _train_memory_script()
+    mod = load_script("benchmarks/train_memory.py")
     monkeypatch.setattr(sys, "argv", ["train_memory.py", "--task", "PointGoal1",
                                       "--trajectories", "0", "--out", str(tmp_path)])
     with pytest.raises(SystemExit):

@@ -14,13 +14,9 @@ import pytest
 from conftest import load_script
 
 
-def _load_compare():
-    return load_script("benchmarks/fidelity_nav/compare.py", "fidelity_nav_compare")
-
-
 @pytest.fixture(scope="module")
 def compare():
-    mod = _load_compare()
+    mod = load_script("benchmarks/fidelity_nav/compare.py", "fidelity_nav_compare")
     if not mod.reference_python().exists():
         pytest.skip(f"the original Safety-Gymnasium venv is absent ({mod.reference_python()}): "
                     "build it with ../shared/reference/install-safety-gymnasium.sh or set "
