@@ -2,6 +2,7 @@
 resumable generation on both rollout paths (JAX scan on ReachAvoid, C MuJoCo on a velocity task),
 its files and its errors."""
 import json
+import os
 
 import chex
 import h5py
@@ -128,6 +129,9 @@ def test_resumed_generation_equals_an_uninterrupted_one(name, kw, tmp_path):
     # the physics library's version, so a regenerated file can be matched to its card
     import mujoco
     assert card["versions"]["mujoco"] == mujoco.__version__
+    # and the machine: XLA's CPU numerics follow the CPUs it may use
+    assert card["machine"]["cpus"] == len(os.sched_getaffinity(0))
+    assert card["machine"]["cpu"] and card["machine"]["arch"]
     assert card["budget_below_dsrl"] and card["trajectories"] <= kw["trajectories"]
     assert card["generation"]["updates"] == kw["env_steps"] // (
         kw["ppo"]["num_envs"] * kw["ppo"]["rollout_len"])

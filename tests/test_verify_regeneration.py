@@ -34,7 +34,8 @@ def _setup(tmp, reward=1.0, log_rows=None, card=None, pinned_reward=1.0):
     f.parent.mkdir()
     write_dsrl(f, _arrays(reward))
     card = card or {"task": "BallRun", "trajectories": 3, "cost_range": [0, 5],
-                    "versions": {"jax": "0.10.2", "mujoco": "4.0.1"}}
+                    "versions": {"jax": "0.10.2", "mujoco": "4.0.1"},
+                    "machine": {"cpu": "AMD EPYC", "cpus": 2, "arch": "x86_64"}}
     f.with_suffix(".json").write_text(json.dumps(card))
     rows = log_rows or [{"update": u, "multiplier": u * 0.5, "steps_per_s": 100 + u}
                         for u in (1, 2, 3)]
@@ -61,6 +62,9 @@ def test_an_identical_regeneration_agrees_on_arrays_log_and_card(tmp_path):
     assert out["log"]["updates_compared"] == 3
     # the versions are reported, not checked: the older card's missing mujoco is named only
     assert out["versions"]["differ"] == ["mujoco"] and out["agree"]
+    # and so is the machine, which the older card does not name
+    assert out["machine"]["differ"] == ["arch", "cpu", "cpus"]
+    assert out["machine"]["new"]["cpus"] == 2 and out["machine"]["old"] == {}
 
 
 def test_a_different_regeneration_names_its_first_differing_update_and_fails(tmp_path):

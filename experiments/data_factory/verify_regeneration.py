@@ -13,8 +13,9 @@ compares a file made anew with all three and prints what agrees:
   one, update by update over every logged quantity except wall-clock speed; the first update
   that differs is named;
 - card: the card's data fields (counts, ranges, split) against the archived card; the two
-  cards' software versions (python, jax, numpy, mujoco) are printed beside, and those that
-  differ named, to read a disagreement by (not a check of their own).
+  cards' software versions (python, jax, numpy, mujoco, pybullet) and machines (CPU model and
+  count) are printed beside, and those that differ named, to read a disagreement by (not a
+  check of their own).
 Exit 0 when every record that exists agrees, 1 otherwise. Written as JSON to FILE.regen.json.
 """
 from __future__ import annotations
@@ -99,6 +100,11 @@ def verify(file: Path, manifest: Path, archive: Path) -> dict:
         out["versions"] = dict(new=va, old=vb,
                                differ=sorted(k for k in set(va) | set(vb)
                                              if va.get(k) != vb.get(k)))
+        # likewise the machine (CPU model, CPUs XLA may use; cards from 2026-12-06 on)
+        ma, mb = a.get("machine") or {}, b.get("machine") or {}
+        out["machine"] = dict(new=ma, old=mb,
+                              differ=sorted(k for k in set(ma) | set(mb)
+                                            if ma.get(k) != mb.get(k)))
     else:
         out["card"] = dict(agree=None, note=f"no archived card {old_card}")
     out["agree"] = all(out[k]["agree"] is not False for k in ("arrays", "log", "card"))
