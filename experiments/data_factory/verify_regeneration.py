@@ -46,6 +46,12 @@ def _rows(lines) -> list[dict]:
             for x in lines if x.strip()]
 
 
+def _side_by_side(new: dict, old: dict) -> dict:
+    """Two cards' entries for one key, and the names whose values differ."""
+    return dict(new=new, old=old,
+                differ=sorted(k for k in set(new) | set(old) if new.get(k) != old.get(k)))
+
+
 def compare_logs(new: list[dict], old: list[dict]) -> dict:
     """First update where any logged quantity differs (None when all shared updates agree)."""
     for i, (a, b) in enumerate(zip(new, old)):
@@ -94,17 +100,11 @@ def verify(file: Path, manifest: Path, archive: Path) -> dict:
         a, b = card, json.loads(old_card.read_text())
         diff = {k: dict(new=a.get(k), old=b.get(k)) for k in CARD_KEYS if a.get(k) != b.get(k)}
         out["card"] = dict(agree=not diff, differences=diff)
-        # not a check: the software each side ran, to read a disagreement by (a card made before
-        # 2026-12-04 21:00 has no mujoco version)
-        va, vb = a.get("versions") or {}, b.get("versions") or {}
-        out["versions"] = dict(new=va, old=vb,
-                               differ=sorted(k for k in set(va) | set(vb)
-                                             if va.get(k) != vb.get(k)))
-        # likewise the machine (CPU model, CPUs XLA may use; cards from 2026-12-06 on)
-        ma, mb = a.get("machine") or {}, b.get("machine") or {}
-        out["machine"] = dict(new=ma, old=mb,
-                              differ=sorted(k for k in set(ma) | set(mb)
-                                            if ma.get(k) != mb.get(k)))
+        # not a check: the software and the machine (CPU model, CPUs XLA may use) each side ran,
+        # to read a disagreement by (cards before 2026-12-04 21:00 name no mujoco version, before
+        # 2026-12-06 no machine)
+        for key in ("versions", "machine"):
+            out[key] = _side_by_side(a.get(key) or {}, b.get(key) or {})
     else:
         out["card"] = dict(agree=None, note=f"no archived card {old_card}")
     out["agree"] = all(out[k]["agree"] is not False for k in ("arrays", "log", "card"))
