@@ -40,7 +40,6 @@ import argparse
 import contextlib
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -51,6 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from r2pac_jax.envs.base import pow2_bucket, put_rows, take_rows
+from r2pac_jax.machine import record
 from r2pac_jax.tasks import get_task, list_tasks
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -63,14 +63,8 @@ GROUPS = {"velocity": VELOCITY, "navigation": NAVIGATION,
           "core-nav": ["CarGoal1", "CarGoal2", "CarButton1", "CarPush1", "PointGoal1"]}
 
 
-def machine() -> dict:
-    return dict(date=time.strftime("%Y-%m-%d %H:%M"), host=platform.node(),
-                cpus=os.cpu_count(), jax=jax.__version__, jax_backend=jax.default_backend(),
-                load_avg=os.getloadavg()[0])
-
-
 def emit(rec: dict, out: str | None):
-    rec = dict(rec, **machine())
+    rec = dict(rec, **record())
     line = json.dumps(rec)
     print(line, flush=True)
     if out:

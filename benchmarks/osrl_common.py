@@ -2,17 +2,14 @@
 from __future__ import annotations
 
 import json
-import os
-import platform
-import time
 from pathlib import Path
-
-import jax
 
 
 def machine() -> dict:
-    return dict(machine=platform.machine(), cpus=os.cpu_count(), jax=jax.__version__,
-                backend=jax.default_backend(), date=time.strftime("%Y-%m-%d %H:%M"))
+    """The machine a figure came from (r2pac_jax.machine.record: CPU model, CPUs, jax, ...)."""
+    from r2pac_jax.machine import record
+
+    return record()
 
 
 def _json(path: Path, fn):

@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import time
 
 import jax
 import jax.numpy as jnp
 
 from r2pac_jax.config import make_config
+from r2pac_jax.machine import record
 from r2pac_jax.data import load_task_dataset
 from r2pac_jax.tasks import get_task
 from r2pac_jax.train import chunk_dataset, make_train
@@ -65,8 +64,7 @@ def main():
         vmapped_s=t_vmap, sequential_s=t_seq, speedup=t_seq / t_vmap,
         vmapped_with_compile_s=t_vmap_first, sequential_with_compile_s=t_seq_first,
         speedup_with_compile=t_seq_first / t_vmap_first,
-        backend=jax.default_backend(), device=str(jax.devices()[0]), cpus=os.cpu_count(),
-        machine=platform.machine(), jax=jax.__version__, date=time.strftime("%Y-%m-%d"))))
+        **record())))
 
 
 if __name__ == "__main__":

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -87,6 +86,7 @@ def main() -> None:
     ap.add_argument("--keep", action="store_true", help="keep the synthetic file")
     args = ap.parse_args()
 
+    from r2pac_jax.machine import record
     from r2pac_jax.tasks import get_task
 
     task = get_task(args.task)
@@ -121,8 +121,7 @@ def main() -> None:
     result = dict(task=task.name, trajectories=n, episode_len=task.episode_len,
                   transitions=n * task.episode_len, obs_dim=task.obs_dim, act_dim=task.act_dim,
                   file_mib=round(size / 2**20), write_s=round(write_s, 1),
-                  steps=args.steps, runs=rows, machine=platform.machine(), cpus=os.cpu_count(),
-                  date=time.strftime("%Y-%m-%d %H:%M"))
+                  steps=args.steps, runs=rows, **record())
     from r2pac_jax.io import atomic_write_json
 
     atomic_write_json(out / "train_memory.json", result)

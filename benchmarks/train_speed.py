@@ -10,15 +10,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
-import time
-
-import jax
 
 from r2pac_jax.config import make_config
 from r2pac_jax.data import load_task_dataset
 from r2pac_jax.tasks import get_task
 from r2pac_jax.loop import time_block
+from r2pac_jax.machine import record
 
 
 def measure(preset: str, seeds: int, phase: str, blocks: int, block_steps: int, overrides=None):
@@ -34,9 +31,7 @@ def measure(preset: str, seeds: int, phase: str, blocks: int, block_steps: int, 
     return dict(preset=preset, phase=phase, seeds=seeds, block_steps=block_steps,
                 steps_per_s=steps_per_s, seed_steps_per_s=seed_steps_per_s,
                 compile_s=compile_s, hidden=list(cfg.hidden_dims), batch=cfg.batch_size,
-                backend=jax.default_backend(), device=str(jax.devices()[0]),
-                machine=platform.machine(), cpus=__import__("os").cpu_count(),
-                jax=jax.__version__, date=time.strftime("%Y-%m-%d"))
+                **record())
 
 
 def main():

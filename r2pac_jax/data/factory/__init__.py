@@ -31,6 +31,7 @@ import numpy as np
 
 from r2pac_jax.data.dsrl import Dataset, DatasetError, validate, write_dsrl
 from r2pac_jax.io import atomic_write_json
+from r2pac_jax.machine import describe as describe_machine
 from r2pac_jax.tasks import TaskSpec
 
 
@@ -208,22 +209,8 @@ def make_card(task: TaskSpec, ds: Dataset, seed: int, trajectories: int, source:
                       pybullet=_installed_version("pybullet")),
         # XLA's CPU numerics depend on the threads it may use (a single-threaded run of
         # CarButton1 departs at update 1), so a file need not regenerate on another machine
-        machine=machine_description(),
+        machine=describe_machine(),
     )
-
-
-def machine_description() -> dict:
-    """{cpu: model name, cpus: CPUs this process may run on, arch}: what a regeneration's
-    numerics may hang on besides the software versions."""
-    cpu = platform.processor() or None
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")),
-                       cpu)
-    except OSError:  # not Linux
-        pass
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return dict(cpu=cpu, cpus=cpus, arch=platform.machine())
 
 
 def _installed_version(package: str) -> Optional[str]:
