@@ -273,7 +273,10 @@ class Run:
         ckpt = Checkpointer(self.out / "checkpoints")
         state = self.init_state()
         done_blocks = 0
-        resume_step = None
+        # The logs keep rows up to the step training starts from: 0 unless a checkpoint is
+        # restored, so an attempt that died before its first checkpoint leaves no rows behind
+        # (they would repeat the steps this run writes again).
+        resume_step = 0
         if resume:
             latest = ckpt.latest_step()
             if latest is not None:

@@ -116,6 +116,28 @@ def test_resume_equals_uninterrupted_run_bitwise(reach_avoid_data, task, tmp_pat
     assert full_res["normalized_reward"] == res["normalized_reward"]
 
 
+def test_a_restart_before_the_first_checkpoint_starts_the_logs_afresh(reach_avoid_data, task,
+                                                                     tmp_path):
+    # blocks of 10 steps, a checkpoint only at step 40: an attempt stopped after two blocks
+    # leaves log rows but nothing to resume from
+    cfg = tiny_config(steps=20, threshold_every=10, eval_every=10, checkpoint_every=40)
+    lanes = Lanes.build(cfg, [0])
+    quiet = dict(progress=False, log=lambda m: None)
+    Run(cfg, task, reach_avoid_data, tmp_path / "full", lanes, **quiet).run()
+    part = Run(cfg, task, reach_avoid_data, tmp_path / "part", lanes, **quiet)
+    assert part.run(stop_after=2) is None
+    assert not list((tmp_path / "part" / "checkpoints").glob("*"))
+    assert (tmp_path / "part" / "metrics.jsonl").read_text()
+    assert part.run(resume=True) is not None
+
+    def rows(d, name):
+        return [{k: v for k, v in json.loads(ln).items() if k != "steps_per_s"}
+                for ln in (tmp_path / d / f"{name}.jsonl").read_text().splitlines()]
+
+    assert rows("full", "metrics") == rows("part", "metrics")
+    assert rows("full", "eval") == rows("part", "eval")
+
+
 def test_cli_end_to_end_and_load_policy(data_dir, tmp_path, capsys):
     out = tmp_path / "run"
     sets = ["steps=20", "batch_size=32", "hidden_dims=16,16", "actor_hidden_dims=16,16",
