@@ -362,7 +362,7 @@ class Run:
             if last_eval is None and self.evaluator is not None:  # resumed after the last block
                 last_eval = self.evaluate(state, total)
             self.save_policy(state)
-            results = self.results(state, last_eval, wall, steps_timed)
+            results = self.results(state, last_eval, wall, steps_timed, resume_step)
             atomic_write_json(self.out / "results.json", results)
             self.plot(logs)
             return results
@@ -408,11 +408,13 @@ class Run:
                     {"task": self.task.name, "algo": self.cfg.algo, "lanes": self.lanes.size,
                      "obs_dim": self.task.obs_dim, "act_dim": self.task.act_dim})
 
-    def results(self, state, ev: Optional[dict], wall: float, steps: int) -> dict:
+    def results(self, state, ev: Optional[dict], wall: float, steps: int,
+                resumed_from_step: int = 0) -> dict:
         from r2pac_jax.results import run_results
 
         out = run_results(self.cfg, self.task.name, self.lanes, self.agent.summary(state), ev,
-                          wall, steps, self.dataset_label, self.physics, self.diverged)
+                          wall, steps, self.dataset_label, self.physics, self.diverged,
+                          resumed_from_step)
         if self.evaluator is not None:  # the simulator that scored it (bullet and MJX scores
             # of a Bullet task, say, are not interchangeable)
             out["eval_backend"] = getattr(self.evaluator.env, "backend", "jax")

@@ -29,13 +29,16 @@ def _nan_to_none(a) -> list:
 
 def run_results(cfg: Config, task_name: str, lanes: Lanes, summary: dict, ev: Optional[dict],
                 wall: float, steps: int, dataset: str, physics: str,
-                diverged: Optional[dict] = None) -> dict:
+                diverged: Optional[dict] = None, resumed_from_step: int = 0) -> dict:
     """summary: the agent's per-lane scalars ({name: [L]}); ev: LaneEvaluator's output or None.
+    wall, steps: this call's seconds and training steps (a resumed run's start from
+    `resumed_from_step`, which results.json records so its wall_time_s is read as a part).
 
     One entry per cell in `cells`; with a single cell its entries also sit at the top level."""
     out = dict(task=task_name, algo=cfg.algo, preset=cfg.preset, dataset=dataset,
                physics=physics, total_steps=cfg.total_steps, wall_time_s=wall,
                train_steps_per_s=steps / wall if wall > 0 else None,
+               resumed_from_step=resumed_from_step,
                config=dataclasses.asdict(cfg), cells=[])
     summary = {k: np.asarray(v) for k, v in summary.items()}
     for c, hp in enumerate(lanes.cell_hparams):

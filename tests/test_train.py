@@ -114,6 +114,8 @@ def test_resume_equals_uninterrupted_run_bitwise(reach_avoid_data, task, tmp_pat
     assert rows("full", "eval") == rows("part", "eval")
     full_res = json.loads((tmp_path / "full" / "results.json").read_text())
     assert full_res["normalized_reward"] == res["normalized_reward"]
+    # the resumed call's wall time covers its part only, and results.json says which part
+    assert full_res["resumed_from_step"] == 0 and res["resumed_from_step"] == 50
 
 
 def test_a_restart_before_the_first_checkpoint_starts_the_logs_afresh(reach_avoid_data, task,
