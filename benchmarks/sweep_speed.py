@@ -17,8 +17,8 @@ import jax
 import jax.numpy as jnp
 
 from r2pac_jax.config import make_config
-from r2pac_jax.machine import record
 from r2pac_jax.data import load_task_dataset
+from r2pac_jax.machine import record
 from r2pac_jax.tasks import get_task
 from r2pac_jax.train import chunk_dataset, make_train
 

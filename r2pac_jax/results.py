@@ -31,8 +31,8 @@ def run_results(cfg: Config, task_name: str, lanes: Lanes, summary: dict, ev: Op
                 wall: float, steps: int, dataset: str, physics: str,
                 diverged: Optional[dict] = None, resumed_from_step: int = 0) -> dict:
     """summary: the agent's per-lane scalars ({name: [L]}); ev: LaneEvaluator's output or None.
-    wall, steps: this call's seconds and training steps (a resumed run's start from
-    `resumed_from_step`, which results.json records so its wall_time_s is read as a part).
+    wall, steps: this call's seconds and training steps; a resumed call starts at
+    `resumed_from_step`, recorded so that its wall_time_s reads as that part of the run only.
 
     One entry per cell in `cells`; with a single cell its entries also sit at the top level."""
     out = dict(task=task_name, algo=cfg.algo, preset=cfg.preset, dataset=dataset,

@@ -131,7 +131,8 @@ def test_a_restart_before_the_first_checkpoint_starts_the_logs_afresh(reach_avoi
     assert part.run(resume=True)["resumed_from_step"] == 0
 
     def steps(name):
-        return [json.loads(ln)["step"] for ln in (tmp_path / f"{name}.jsonl").read_text().splitlines()]
+        lines = (tmp_path / f"{name}.jsonl").read_text().splitlines()
+        return [json.loads(ln)["step"] for ln in lines]
 
     blocks = len(part.schedule)
     assert blocks > 2
