@@ -10,6 +10,67 @@ from typing import Any, Optional
 
 import jax
 
+from r2pac_jax.config import ConfigError
+
+
+class CheckpointUnreadable(ConfigError):
+    """No checkpoint of a run reads back (each one's reason is in the message)."""
+
+
+def _one_line(e: BaseException) -> str:
+    text = " ".join(str(e).split()) or type(e).__name__
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+# Orbax's array chunks carry no checksum of their own: bytes damaged on disk in one of them
+# restore silently as other numbers. Each checkpoint therefore records the sha256 of its files
+# when it is written, and a restore compares them first (checkpoints of earlier releases,
+# without the record, are restored unchecked).
+DIGEST = "r2pac_sha256.json"
+
+
+def _file_digests(step_dir: Path) -> dict[str, str]:
+    import hashlib
+
+    out = {}
+    for p in sorted(step_dir.rglob("*")):
+        if p.is_file() and p.name != DIGEST:
+            h = hashlib.sha256()
+            with open(p, "rb") as f:
+                for block in iter(lambda: f.read(1 << 20), b""):
+                    h.update(block)
+            out[str(p.relative_to(step_dir))] = h.hexdigest()
+    return out
+
+
+def write_digest(step_dir: Path) -> None:
+    from r2pac_jax.io import atomic_write_json
+
+    atomic_write_json(step_dir / DIGEST, _file_digests(step_dir))
+
+
+def check_digest(step_dir: Path) -> None:
+    """Raise CheckpointDamaged when a file of the checkpoint differs from its record."""
+    import json
+
+    record = step_dir / DIGEST
+    if not record.is_file():
+        return
+    try:
+        want = json.loads(record.read_text())
+    except ValueError:
+        raise CheckpointDamaged(f"its checksum record {record} is damaged") from None
+    have = _file_digests(step_dir)
+    bad = sorted(k for k in want if have.get(k) != want[k])
+    if bad:
+        what = "missing or changed" if any(k not in have for k in bad) else "changed"
+        raise CheckpointDamaged(f"{len(bad)} of its files {what} on disk since it was written "
+                                f"(sha256 differs: {', '.join(bad[:2])})")
+
+
+class CheckpointDamaged(ValueError):
+    """A checkpoint's files differ from the checksums recorded when it was written."""
+
 
 class Checkpointer:
     def __init__(self, directory, max_to_keep: int = 2):
@@ -44,15 +105,61 @@ class Checkpointer:
                     state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)),
                     force=True)
                 self._mgr.wait_until_finished()
+                write_digest(self.directory / str(step))
         finally:
             absl.setLevel(level)
 
     def latest_step(self) -> Optional[int]:
         return self._mgr.latest_step()
 
+    def all_steps(self) -> list[int]:
+        """The finished checkpoints' steps, newest first."""
+        return sorted(self._mgr.all_steps(), reverse=True)
+
+    def restore_newest_readable(self, like: Any, log=print) -> tuple[int, Any, dict]:
+        """(step, state, meta) of the newest checkpoint that reads back into `like`.
+
+        A newer one that does not (bytes damaged on disk: tensorstore's CRC error, a truncated
+        file) is moved to `checkpoints-damaged/STEP` beside this directory, so that training can
+        write that step again while nothing on disk is deleted, and `log` says which and why.
+        If none reads back, nothing is moved and CheckpointUnreadable names each failure."""
+        failures = []
+        for step in self.all_steps():
+            try:
+                state, meta = self.restore(step, like)
+            except Exception as e:  # noqa: BLE001 - every reason is reported; none is hidden
+                failures.append((step, _one_line(e)))
+                continue
+            for bad, why in failures:
+                dest = self.quarantine(bad)
+                log(f"warning: checkpoint step {bad} does not read back ({why}); skipped and "
+                    f"moved to {dest}; resuming from step {step}")
+            return step, state, meta
+        listed = "; ".join(f"step {s}: {why}" for s, why in failures)
+        raise CheckpointUnreadable(
+            f"--resume: no checkpoint in {self.directory} reads back ({listed}); nothing was "
+            "changed. Start the run again into another --out (or move the checkpoints away "
+            "and rerun without --resume)")
+
+    def quarantine(self, step: int) -> Path:
+        """Move checkpoint `step` out of orbax's sight (it would refuse to save that step again)."""
+        import os
+
+        dest_dir = self.directory.parent / f"{self.directory.name}-damaged"
+        dest_dir.mkdir(parents=True, exist_ok=True)
+        dest = dest_dir / str(step)
+        n = 1
+        while dest.exists():  # an earlier quarantine of the same step is kept too
+            dest = dest_dir / f"{step}.{n}"
+            n += 1
+        os.replace(self.directory / str(step), dest)
+        self._mgr.reload()
+        return dest
+
     def restore(self, step: int, like: Any) -> tuple[Any, dict]:
         """Restore `step` into the structure (shapes, dtypes) of `like`."""
         ocp = self._ocp
+        check_digest(self.directory / str(step))
         abstract = jax.tree_util.tree_map(ocp.utils.to_shape_dtype_struct, like)
         out = self._mgr.restore(step, args=ocp.args.Composite(
             state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore()))

@@ -203,3 +203,94 @@ def lock_directory(path):
     f.write(f"pid {os.getpid()} on {socket.gethostname()}\n")
     f.flush()
     return f
+
+
+# ---------------------------------------------------------------------------------------------
+# Directories the project writes into: new, empty, or its own
+
+
+MARKER = ".r2pac_jax.json"  # written into every directory the project claims
+# What a reader is told to change, by the kind of directory
+_CHOOSE = {"run": "--out", "table": "--out", "sweep": "--out", "data cache": "R2PAC_DATA_DIR"}
+
+
+class ForeignDirectory(WriteError):
+    """A directory the project would write into holds files it did not write."""
+
+
+def marker_kind(path) -> Optional[str]:
+    """The kind recorded in DIR's marker ('run', 'table', ...), '?' for an unreadable marker,
+    None when DIR holds none."""
+    m = Path(path) / MARKER
+    if not m.is_file():
+        return None
+    try:
+        return str(json.loads(m.read_text()).get("kind", "?"))
+    except (ValueError, OSError, AttributeError):
+        return "?"
+
+
+def claim_directory(path, kind: str, legacy=None, check_only: bool = False) -> Path:
+    """Make sure the project may write into `path` as a directory of `kind`, and mark it.
+
+    Allowed: a path that does not exist yet, an empty directory, one whose marker says `kind`,
+    or one that `legacy(path)` recognises as written by an earlier release (before the marker);
+    the marker is then written (unless `check_only`). Anything else, above all a user's own
+    folder, raises ForeignDirectory before anything is written there."""
+    path = Path(path)
+    flag = _CHOOSE.get(kind, "another directory")
+    if path.exists() and not path.is_dir():
+        raise WriteError(errno.EEXIST, f"{path} is a file, not a directory: choose a directory "
+                         f"path (for {flag}, a new directory or one r2pac_jax wrote)")
+    if path.is_dir():
+        have = marker_kind(path)
+        entries = sorted(p.name for p in path.iterdir())
+        if have is not None and have not in (kind, "?"):
+            raise ForeignDirectory(errno.EEXIST, f"{path} is a {have} directory of r2pac_jax, "
+                                   f"not a {kind} directory; nothing was written there: choose "
+                                   f"another {flag}")
+        ours = (have is not None or not [e for e in entries if e != ".lock"]
+                or (legacy is not None and legacy(path)))
+        if not ours:
+            shown = ", ".join(entries[:4]) + (", ..." if len(entries) > 4 else "")
+            raise ForeignDirectory(
+                errno.EEXIST, f"{path} is not empty and was not written by r2pac_jax (it holds "
+                f"{shown}); nothing was written there: choose a new or empty directory for "
+                f"{flag}, or one that an earlier {kind} of r2pac_jax wrote")
+        if have == kind or check_only:
+            return path
+    elif check_only:
+        return path
+    import time
+
+    atomic_write_json(path / MARKER, dict(kind=kind, written_by="r2pac_jax",
+                                          since=time.strftime("%Y-%m-%dT%H:%M:%S")))
+    return path
+
+
+@contextlib.contextmanager
+def sigint_deferred():
+    """Hold Ctrl-C (SIGINT) until the block ends, then raise KeyboardInterrupt there.
+
+    Used around a run's bookkeeping (log rows, the checkpoint save): an interrupt that lands
+    inside orbax's save leaves its writer threads half-done, and they print tracebacks at exit.
+    The long part, the compiled training block, stays interruptible at once. Only the main
+    thread can hold signals; elsewhere this is a no-op."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    previous = signal.getsignal(signal.SIGINT)
+    if previous in (signal.SIG_IGN, None):  # not ours to change (a background job)
+        yield
+        return
+    signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt

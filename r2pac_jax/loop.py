@@ -22,7 +22,7 @@ import numpy as np
 from r2pac_jax.agents import make_agent
 from r2pac_jax.config import Config, ConfigError, default_hparams
 from r2pac_jax.data.dsrl import Dataset
-from r2pac_jax.io import atomic_write_json, lock_directory
+from r2pac_jax.io import atomic_write_json, claim_directory, lock_directory, sigint_deferred
 from r2pac_jax.lanes import Lanes, place
 from r2pac_jax.tasks import TaskSpec
 
@@ -148,6 +148,18 @@ def check_run(cfg: Config, task: TaskSpec, ds: Dataset) -> None:
     make_agent(cfg, task.obs_dim, task.act_dim).check_data(task, ds)
 
 
+def is_legacy_run(path: Path) -> bool:
+    """A run directory written before directories were marked: its config.json and lanes.json
+    read back as a run's, or it holds nothing but what a run killed before writing them left."""
+    from r2pac_jax.policy import read_run
+
+    try:
+        cfg, lanes = read_run(path)
+    except FileNotFoundError:
+        return {p.name for p in path.iterdir()} <= {".lock", "checkpoints"}
+    return isinstance(lanes, dict) and "seeds" in lanes and bool(cfg.task)
+
+
 def config_changes(old: Config, new: Config) -> list[str]:
     """Flat keys whose values differ between two configs, as 'key: old -> new'."""
     a, b = old.flat(), new.flat()
@@ -172,6 +184,7 @@ class Run:
         if nonfinite not in ("stop", "mark"):
             raise ValueError(f"nonfinite must be 'stop' or 'mark', got {nonfinite!r}")
         self.nonfinite = nonfinite
+        self.step_reached, self.last_checkpoint = 0, None  # what an interruption reports
         self.diverged: dict[int, dict] = {}  # lane -> {seed, step, terms}
         self.cfg, self.task, self.lanes = cfg, task, lanes
         self.out = Path(out_dir)
@@ -198,6 +211,15 @@ class Run:
         if self.evaluator is None or phase == "critic":
             return False
         return last or phase_step % self.cfg.eval_every == 0
+
+    def check_memory(self) -> None:
+        """Refuse, before anything is allocated, lanes that do not fit in memory (memory.py)."""
+        from r2pac_jax.memory import block_need, check_fits
+
+        need = block_need(self._init, self._blocks, self.lanes.hp, self.data, self.lanes.size)
+        check_fits(need, f"{self.task.name} {self.cfg.algo}",
+                   "fewer lanes (--seeds, or fewer cells in a sweep) or a smaller batch "
+                   f"(--set batch_size=..., now {self.cfg.batch_size})", log=self.log)
 
     def init_state(self):
         return place(self._init(self.lanes.init_keys(), self.lanes.hp), self.lanes.size)
@@ -231,6 +253,7 @@ class Run:
         """Train to the end (or stop after `stop_after` blocks, as an interruption would, and
         return None); with `resume`, continue from the latest checkpoint in the run directory.
         The directory is locked meanwhile: a second live process on it gets DirectoryBusy."""
+        claim_directory(self.out, "run", legacy=is_legacy_run)
         lock = lock_directory(self.out)
         try:
             return self._run(resume, stop_after)
@@ -269,28 +292,31 @@ class Run:
         from r2pac_jax.metrics_log import MetricsLog
 
         cfg = self.cfg
+        if resume:
+            # settings are compared whether or not checkpoints remain: a run whose checkpoints
+            # are gone must not restart silently under other settings
+            self._check_same_run()
         self.out.mkdir(parents=True, exist_ok=True)
         ckpt = Checkpointer(self.out / "checkpoints")
+        if not resume and ckpt.latest_step() is not None:
+            raise ConfigError(f"{self.out} already holds a run (checkpoint at step "
+                              f"{ckpt.latest_step()}); pass --resume to continue it or choose "
+                              "another --out")
+        self.check_memory()  # before anything of the run is allocated
         state = self.init_state()
         done_blocks = 0
         # The logs keep rows up to the step training starts from: 0 unless a checkpoint is
         # restored, so an attempt that died before its first checkpoint leaves no rows behind
         # (they would repeat the steps this run writes again).
         resume_step = 0
-        if resume:
-            latest = ckpt.latest_step()
-            if latest is not None:
-                self._check_same_run()
-                state, meta = ckpt.restore(latest, state)
-                state = place(state, self.lanes.size)
-                done_blocks = int(meta["blocks_done"])
-                self.diverged = {int(k): v for k, v in meta.get("diverged", {}).items()}
-                resume_step = latest
-                self.log(f"resuming {self.out} from step {latest}")
-        elif ckpt.latest_step() is not None:
-            raise ConfigError(f"{self.out} already holds a run (checkpoint at step "
-                              f"{ckpt.latest_step()}); pass --resume to continue it or choose "
-                              "another --out")
+        self.step_reached, self.last_checkpoint = 0, None
+        if resume and ckpt.latest_step() is not None:
+            latest, state, meta = ckpt.restore_newest_readable(state, log=self.log)
+            state = place(state, self.lanes.size)
+            done_blocks = int(meta["blocks_done"])
+            self.diverged = {int(k): v for k, v in meta.get("diverged", {}).items()}
+            resume_step = self.step_reached = self.last_checkpoint = latest
+            self.log(f"resuming {self.out} from step {latest}")
         import json
 
         atomic_write_json(self.out / "config.json",
@@ -323,11 +349,14 @@ class Run:
                 first_bad = np.asarray(first_bad)
                 dt = time.time() - t0
                 steps_timed += cfg.threshold_every
-                for lane in range(self.lanes.size):
-                    row = {k: float(v[lane]) for k, v in metrics.items()}
-                    row.update(step=step, phase=phase, lane=lane, seed=self.lanes.seeds[lane],
-                               steps_per_s=cfg.threshold_every / dt)
-                    logs.write("metrics", row, tb_prefix=f"train/lane{lane}")
+                self.step_reached = step
+                with sigint_deferred():  # a block's rows are logged whole
+                    for lane in range(self.lanes.size):
+                        row = {k: float(v[lane]) for k, v in metrics.items()}
+                        row.update(step=step, phase=phase, lane=lane,
+                                   seed=self.lanes.seeds[lane],
+                                   steps_per_s=cfg.threshold_every / dt)
+                        logs.write("metrics", row, tb_prefix=f"train/lane{lane}")
                 self._check_finite(metrics, step - cfg.threshold_every + 1 + first_bad,
                                    ckpt.latest_step())
                 last = i == len(schedule) - 1
@@ -343,9 +372,11 @@ class Run:
                             mean_cost=float(res["costs"][lane].mean())),
                             tb_prefix=f"eval/lane{lane}")
                 if last or step % cfg.checkpoint_every == 0:
-                    ckpt.save(step, state, {"blocks_done": i + 1, "step": step,
-                                            "diverged": {str(k): v for k, v in
-                                                         self.diverged.items()}})
+                    with sigint_deferred():  # Ctrl-C waits for the save to finish
+                        ckpt.save(step, state, {"blocks_done": i + 1, "step": step,
+                                                "diverged": {str(k): v for k, v in
+                                                             self.diverged.items()}})
+                        self.last_checkpoint = step
                 if bar is not None:
                     post = {"phase": phase}
                     if "threshold" in metrics:

@@ -60,28 +60,49 @@ def load_policy(run_dir, lane: int = 0):
         raise IndexError(f"lane {lane} out of range: the run has {n} lanes")
     pp = jax.tree_util.tree_map(lambda x: x[lane], pp)
     if hasattr(agent, "memory_init"):
-        return _memory_policy(agent, pp)
+        return _memory_policy(agent, pp, task)
 
     @jax.jit
-    def act(obs, key):
+    def act_jit(obs, key):
         obs = jnp.asarray(obs, jnp.float32)
         single = obs.ndim == 1
         a = agent.act(pp, obs[None] if single else obs, key)
         return a[0] if single else a
 
+    def act(obs, key):
+        _check_obs(obs, task, (1, 2))
+        return act_jit(obs, key)
+
     return act
 
 
-def _memory_policy(agent, pp):
+def _check_obs(obs, task, ndims) -> None:
+    """A clear ValueError for an observation the policy cannot take (shapes are static, so this
+    costs nothing per call)."""
+    shape = jnp.shape(obs)
+    forms = " or ".join({1: f"[{task.obs_dim}]", 2: f"[B, {task.obs_dim}]"}[n] for n in ndims)
+    if len(shape) not in ndims or shape[-1] != task.obs_dim:
+        raise ValueError(f"observation of shape {tuple(shape)}: the {task.name} policy takes "
+                         f"observations of width {task.obs_dim} ({forms}); pass the task's "
+                         "observation vector")
+
+
+def _memory_policy(agent, pp, task):
     """load_policy's form for agents with memory (batched observations only)."""
 
     step = jax.jit(lambda obs, key, memory: agent.act_memory(
         pp, jnp.asarray(obs, jnp.float32), key, memory))
+    init = jax.jit(lambda obs: agent.memory_init(pp, jnp.asarray(obs, jnp.float32)))
 
     def act(obs, key, memory):
+        _check_obs(obs, task, (2,))
         return step(obs, key, memory)
 
-    act.init = jax.jit(lambda obs: agent.memory_init(pp, jnp.asarray(obs, jnp.float32)))
+    def init_memory(obs):
+        _check_obs(obs, task, (2,))
+        return init(obs)
+
+    act.init = init_memory
     act.observe = jax.jit(lambda memory, reward, cost: agent.observe(
         pp, memory, jnp.asarray(reward, jnp.float32), jnp.asarray(cost, jnp.float32)))
     return act

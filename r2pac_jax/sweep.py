@@ -30,7 +30,8 @@ from typing import Any, Optional
 from r2pac_jax.agents import algo_module
 from r2pac_jax.config import (ConfigError, field_types, make_config, refuse_user_key,
                               resolve_preset)
-from r2pac_jax.io import DirectoryBusy, WriteError, atomic_write_json, atomic_write_text
+from r2pac_jax.io import (DirectoryBusy, WriteError, atomic_write_json, atomic_write_text,
+                          claim_directory)
 
 TOP_KEYS = {"name", "description", "task", "tasks", "algo", "algos", "preset", "seeds",
             "eval_episodes", "physics", "dataset", "config", "grid"}
@@ -291,12 +292,23 @@ def _ray_group(sweep_path: str, task_override, group_id: str, out: str):
     return group_id
 
 
-def run_sweep(path, out: Optional[Path] = None, launcher: str = "local",
+def is_legacy_sweep(path: Path) -> bool:
+    """A sweep directory written before directories were marked: its sweep.json reads back."""
+    try:
+        return "cells" in json.loads((path / "sweep.json").read_text())
+    except (OSError, ValueError, TypeError):
+        return False
+
+
+def run_sweep(path, out=None, launcher: str = "local",
               task_override: Optional[str] = None, log=print, progress: bool = True) -> Path:
+    if out is not None and not str(out).strip():
+        raise SweepError("--out '': an empty path; pass the sweep's directory (or leave --out "
+                         "out for runs/sweeps/NAME)")
     sweep = load_sweep(path, task_override)
     check_data(sweep)
     out = Path(out or f"runs/sweeps/{sweep.name}")
-    out.mkdir(parents=True, exist_ok=True)
+    claim_directory(out, "sweep", legacy=is_legacy_sweep)
     atomic_write_json(out / "sweep.json", dict(
         file=str(path), name=sweep.name, preset=sweep.preset, seeds=sweep.seeds,
         task_override=task_override, cells=[dict(id=c.cell_id, label=c.label) for c in sweep.cells],
@@ -478,14 +490,21 @@ def main(argv=None) -> int:
                 for c in g.cells:
                     print(f"  cell {c.cell_id}: {c.label}")
             return 0
-        out = run_sweep(args.file, Path(args.out) if args.out else None, args.launcher,
-                        args.task, progress=not args.no_progress)
+        out = run_sweep(args.file, args.out, args.launcher, args.task,
+                        progress=not args.no_progress)
         print((out / "table.md").read_text() if (out / "table.md").exists() else "")
         return 0
     except (SweepError, ConfigError, DirectoryBusy, WriteError, DatasetError, ChunkError,
             TrainingDiverged) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # finished cells are kept; a group resumes from its checkpoint
+        import shlex
+
+        print("interrupted: the finished cells are kept and the running group continues from "
+              "its last checkpoint; continue with: python -m r2pac_jax.sweep "
+              f"{shlex.join(argv)}", file=sys.stderr, flush=True)
+        return 130
 
 
 if __name__ == "__main__":

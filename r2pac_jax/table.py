@@ -303,7 +303,16 @@ def write_outputs(out: Path, cells: dict, algos, families: dict, caption: str) -
     return md
 
 
+def is_legacy_table(path: Path) -> bool:
+    """A table directory written before directories were marked: its manifest reads back."""
+    try:
+        return "datasets" in json.loads((path / "manifest.json").read_text())
+    except (OSError, ValueError, TypeError):
+        return False
+
+
 def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
 
     def log(msg):
@@ -313,11 +322,12 @@ def main(argv=None) -> int:
     from r2pac_jax.config import ConfigError, resolve_preset
     from r2pac_jax.data import DatasetError, load_task_dataset
     from r2pac_jax.data.chunks import ChunkError
-    from r2pac_jax.io import DirectoryBusy, WriteError
+    from r2pac_jax.io import DirectoryBusy, WriteError, claim_directory
     from r2pac_jax.lanes import Lanes
     from r2pac_jax.loop import Run, TrainingDiverged, check_run
     from r2pac_jax.tasks import EnvUnavailableError, UnknownTaskError, get_task
 
+    run = out = None  # what a Ctrl-C reports
     try:
         args.preset, why = resolve_preset(args.preset)
         log(why)
@@ -333,14 +343,18 @@ def main(argv=None) -> int:
             algo_module(a)  # an unknown name is refused with the known ones
         if args.seeds < 1 or args.episodes < 1:
             raise ConfigError("--seeds and --episodes must be >= 1")
+        if not args.out.strip():
+            raise ConfigError("--out '': an empty path; pass the table's directory")
         out = Path(args.out)
         if out.exists() and not out.is_dir():
             raise ConfigError(f"--out {out} is a file, not a directory")
+        if not args.table_only:  # a folder the project did not write is refused up front
+            claim_directory(out, "table", legacy=is_legacy_table, check_only=True)
         if args.results_only and not args.merge_from:
             raise ConfigError("--results-only says how --merge-from copies cells: give "
                               "--merge-from SRC too")
         if args.merge_from:  # --table-only alone reads an existing table and creates nothing
-            out.mkdir(parents=True, exist_ok=True)
+            claim_directory(out, "table", legacy=is_legacy_table)
         for src in args.merge_from:
             merge_from(out, Path(src), args, log)
         if args.table_only:
@@ -358,7 +372,7 @@ def main(argv=None) -> int:
         if args.estimate:
             estimate(tasks, algos, args, ds_of, log)
             return 0
-        out.mkdir(parents=True, exist_ok=True)
+        claim_directory(out, "table", legacy=is_legacy_table)
         datasets = {}
         for t in tasks:
             ds = ds_of(t)
@@ -388,6 +402,14 @@ def main(argv=None) -> int:
             DirectoryBusy, TrainingDiverged, WriteError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # finished cells are kept; the same command continues the rest
+        import shlex
+
+        from r2pac_jax.train import interrupted_line
+
+        command = "python -m r2pac_jax.table " + shlex.join(argv)
+        print(interrupted_line(run, command), file=sys.stderr, flush=True)
+        return 130
     earlier = finished_cells(out, manifest, algos, skip=cells)
     _write_table(out, {**earlier, **cells}, manifest, algos, args, log)  # asked-for tasks last
     return 0

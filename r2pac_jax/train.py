@@ -17,10 +17,10 @@ from typing import Sequence
 from r2pac_jax.agents import algo_module, algo_names
 from r2pac_jax.config import (PRESETS, Config, ConfigError, field_types, make_config,
                               refuse_user_key, resolve_preset)
-from r2pac_jax.io import DirectoryBusy, WriteError, atomic_write_text
+from r2pac_jax.io import DirectoryBusy, WriteError, atomic_write_text, claim_directory
 from r2pac_jax.lanes import Lanes
-from r2pac_jax.loop import (Run, TrainingDiverged, chunk_dataset, compiled, make_block,  # noqa: F401
-                            make_data, make_train)
+from r2pac_jax.loop import (Run, TrainingDiverged, chunk_dataset, compiled,  # noqa: F401
+                            is_legacy_run, make_block, make_data, make_train)
 from r2pac_jax.tasks import TaskSpec, get_task
 
 _TYPE_WORDS = {bool: "true or false", int: "an integer", float: "a number",
@@ -147,7 +147,33 @@ def describe(cfg: Config) -> str:
     return f"{cfg.algo}: " + ", ".join(parts)
 
 
+def resume_command(argv: Sequence[str], out: Path, prog: str = "python -m r2pac_jax.train") -> str:
+    """The command line that continues the job `argv` started in `out`."""
+    import shlex
+
+    argv = list(argv)
+    if "--out" not in argv and not any(a.startswith("--out=") for a in argv):
+        argv += ["--out", str(out)]
+    if "--resume" not in argv:
+        argv.append("--resume")
+    return f"{prog} {shlex.join(argv)}"
+
+
+def interrupted_line(run, command: str) -> str:
+    """One line for Ctrl-C: where training stood, what is kept, how to continue."""
+    if run is None:
+        where = "before training started"
+    else:
+        total = run.cfg.total_steps
+        ck = (f"its last checkpoint is step {run.last_checkpoint} ({run.out / 'checkpoints'})"
+              if run.last_checkpoint is not None else "no checkpoint was written yet (a resume "
+              "starts it afresh)")
+        where = f"{run.task.name} {run.cfg.algo} at step {run.step_reached} of {total}; {ck}"
+    return f"interrupted: {where}; continue with: {command}"
+
+
 def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
 
     def log(msg):
@@ -158,6 +184,7 @@ def main(argv=None) -> int:
     from r2pac_jax.loop import check_run
     from r2pac_jax.tasks import EnvUnavailableError, UnknownTaskError
 
+    run = out = None  # what a Ctrl-C reports
     try:
         task = get_task(args.task)
         preset, why = resolve_preset(args.preset)
@@ -173,7 +200,12 @@ def main(argv=None) -> int:
             # JAX folds a negative seed into uint32, so seed -1 would silently be seed 2**32 - 1
             raise ConfigError(f"--seed-offset {args.seed_offset}: seeds are integers >= 0; "
                               "pass --seed-offset 0 or more")
+        if args.out is not None and not args.out.strip():
+            raise ConfigError("--out '': an empty path; pass the run directory (or leave --out "
+                              "out for runs/TASK-ALGO-TIME)")
         out = Path(args.out or f"runs/{task.name}-{args.algo}-{time.strftime('%Y%m%d-%H%M%S')}")
+        # a folder the project did not write is refused before any data is made or loaded
+        claim_directory(out, "run", legacy=is_legacy_run, check_only=True)
         # every config is checked before any data is generated or any training starts
         sets = _parse_set(args.set, algos)
         main_only = {k: v for k, v in sets.items() if k in field_types(args.algo)}
@@ -210,6 +242,13 @@ def main(argv=None) -> int:
             DirectoryBusy, TrainingDiverged, WriteError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        # Ctrl-C: checkpoints are written atomically, so what is on disk is complete; say so
+        # in one line instead of a traceback (exit 130, the shell's code for SIGINT)
+        where = out or Path(args.out or ".")
+        print(interrupted_line(run, resume_command(argv, where)),
+              file=sys.stderr, flush=True)
+        return 130
     from r2pac_jax.report import TASK_CONTEXT, results_table, setting_line, verdict_line
 
     if all("normalized_reward" in r for r in results.values()):

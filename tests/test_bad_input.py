@@ -49,7 +49,18 @@ CASES = [
     ("train", T + ["--dataset", "{f}"], 2, "cannot be read as HDF5"),
     ("train", T + ["--dataset", "{unsafe}", "--out", "{t}/u"], 2,
      "bc-safe: the dataset {unsafe} has no episode with cost <= kappa=2.0"),
+    ("train", T + ["--dataset", "{negcost}", "--out", "{t}/n"], 2,
+     "key 'costs': 2 rows hold negative costs (row 3: -0.5, row 7: -1)"),
     # train: where it writes
+    ("train", T + ["--out", ""], 2, "--out '': an empty path"),
+    ("train", T + ["--dataset", "{d}", "--out", "{userdir}"] + TINY, 2,
+     "{userdir} is not empty and was not written by r2pac_jax (it holds config.json, "
+     "notes.txt); nothing was written there"),
+    ("train", T + ["--dataset", "{d}", "--out", "{sweepdir}"] + TINY, 2,
+     "{sweepdir} is a sweep directory of r2pac_jax, not a run directory"),
+    ("train", T + ["--dataset", "{d}", "--out", "{killed}", "--baselines", "none", "--resume"]
+     + TINY + ["--set", "steps=40"], 2, "--resume: {killed} was started with other settings "
+     "(steps: 20 -> 40)"),
     ("train", T + ["--dataset", "{d}", "--out", "{f}"] + TINY, 2,
      "is a file, not a directory"),
     ("train", T + ["--dataset", "{d}", "--out", "{f}/sub"] + TINY, 2,
@@ -72,12 +83,23 @@ CASES = [
     ("sweep", ["{sweep_physics}"], 2,
      "physics = 'mjx' in the sweep file: --physics 'mjx': not a simulator of ReachAvoid"),
     ("sweep", ["{t}/none.toml"], 2, "no such sweep file"),
+    ("sweep", ["{sweep_switch}", "--out", ""], 2, "--out '': an empty path"),
+    ("sweep", ["{sweep_ok}", "--out", "{userdir}"], 2,
+     "{userdir} is not empty and was not written by r2pac_jax"),
+    ("table", ["--tasks", "ReachAvoid", "--algos", "bc-all", "--out", ""], 2,
+     "--out '': an empty path"),
+    ("table", ["--tasks", "ReachAvoid", "--algos", "bc-all", "--out", "{userdir}"], 2,
+     "{userdir} is not empty and was not written by r2pac_jax"),
+    ("table", ["--tasks", "ReachAvoid", "--algos", "bc-all", "--out", "{run}"], 2,
+     "{run} is a run directory of r2pac_jax, not a table directory"),
     # data
     ("data", ["make", "--task", "CarGoal2", "--source", "ppo-lagrangian", "--budget", "0"], 2,
      "--budget must be >= 1, got 0"),
     ("data", ["make", "--task", "CarRun", "--source", "scripted"], 2,
      "task CarRun has no scripted data source"),
-    ("data", ["check", "{f}"], 2, "does not say its task"),
+    ("data", ["check", "{unsafe}"], 2, "does not say its task"),
+    ("data", ["check", "{f}"], 2, "cannot be read as HDF5"),
+    ("data", ["check", "{truncated}"], 2, "cannot be read as HDF5 (Unable to"),
     ("data", ["check", "{t}/missing.hdf5"], 2, "missing.hdf5: no such file"),
     ("data", ["make", "--task", "CarGoal2", "--trajectories", "0"], 2,
      "--trajectories must be >= 1, got 0"),
@@ -134,11 +156,43 @@ def places(tmp_path_factory, reach_avoid_data):
                               'quantile_alpha = [0.5, 0.9]\n')
     sweep_switch = t / "s2.toml"
     sweep_switch.write_text('task = "ReachAvoid"\n[config]\nreward_penalty = false\n')
+    negcost = t / "negcost.hdf5"
+    costs = arrays["costs"].copy()
+    costs[3], costs[7] = -0.5, -1.0
+    _write_raw(negcost, dict(arrays, costs=costs))
+    truncated = t / "truncated.hdf5"
+    truncated.write_bytes(d.read_bytes()[:4096])
+    userdir = t / "user"  # a user's own folder: never written into
+    userdir.mkdir()
+    (userdir / "config.json").write_text('{"my": "settings"}\n')
+    (userdir / "notes.txt").write_text("my notes\n")
+    sweepdir = t / "sweepdir"
+    sweepdir.mkdir()
+    (sweepdir / ".r2pac_jax.json").write_text('{"kind": "sweep"}\n')
+    sweep_ok = t / "s4.toml"
+    sweep_ok.write_text(f'task = "ReachAvoid"\ndataset = "{d}"\n[grid]\nchunk_len = [1, 2]\n')
     sweep_physics = t / "s3.toml"
     sweep_physics.write_text('task = "ReachAvoid"\nphysics = "mjx"\n[grid]\nchunk_len = [1, 2]\n')
     return dict(t=t, d=d, f=f, run=run, killed=killed, damaged=damaged, unsafe=unsafe,
+                negcost=negcost, truncated=truncated, userdir=userdir, sweepdir=sweepdir,
+                sweep_ok=sweep_ok,
                 sweep_not_hdf5=sweep_not_hdf5, sweep_switch=sweep_switch,
                 sweep_physics=sweep_physics)
+
+
+def _write_raw(path, arrays):
+    """An HDF5 file in DSRL's layout written without validation (write_dsrl refuses bad data)."""
+    import h5py
+
+    with h5py.File(path, "w") as f:
+        for k, v in arrays.items():
+            f.create_dataset(k, data=v)
+
+
+def _folder(path):
+    """Every file under `path` with its bytes: what 'untouched' compares."""
+    return {str(p.relative_to(path)): p.read_bytes() for p in sorted(path.rglob("*"))
+            if p.is_file()}
 
 
 def _fill(s, places):
@@ -152,6 +206,7 @@ def _fill(s, places):
 def test_bad_input_gets_one_line_and_exit_2(cli, argv, code, fragment, places, capsys, data_dir):
     before = {p: p.stat().st_mtime_ns for p in places["run"].rglob("*")
               if p.is_file() and p.name != ".lock"}
+    user = _folder(places["userdir"])
     rc = _main(cli)([_fill(a, places) for a in argv])
     out = capsys.readouterr()
     text = out.err if code else out.out
@@ -165,6 +220,7 @@ def test_bad_input_gets_one_line_and_exit_2(cli, argv, code, fragment, places, c
              if p.is_file() and p.name != ".lock"}
     if cli == "train":  # nothing of the finished run was touched
         assert {p: m for p, m in after.items() if p in before} == before
+    assert _folder(places["userdir"]) == user  # nor the user's folder: no file added or changed
 
 
 def test_safe_subset_checked_before_any_training(places, capsys, data_dir):

@@ -34,15 +34,17 @@ def checks_path(path) -> Path:
 
 
 def file_task(path) -> Optional[str]:
-    """The task a file says it belongs to (HDF5 attribute, else its card), or None."""
+    """The task a file says it belongs to (HDF5 attribute, else its card), or None; a file
+    that cannot be read as HDF5 (damaged, truncated, another format) is a DatasetError."""
     import h5py
 
     try:
         with h5py.File(path, "r") as f:
             if "task" in f.attrs:
                 return str(f.attrs["task"])
-    except OSError:
-        return None
+    except OSError as e:
+        raise DatasetError(f"{path}: cannot be read as HDF5 ({e}). Fix: the file is damaged or "
+                           "not HDF5; download or generate it again") from e
     card = Path(path).with_suffix(".json")
     if card.exists():
         return json.loads(card.read_text()).get("task")

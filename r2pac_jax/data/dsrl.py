@@ -134,6 +134,13 @@ def validate(arrays: dict, path: str = "<memory>", obs_dim: Optional[int] = None
         raise _fail(path, "actions", f"has {out['actions'].shape[1]} columns but task "
                     f"{task_name or '?'} has actions of size {act_dim}",
                     "the file belongs to another task: pass the matching --task or --dataset")
+    neg = np.flatnonzero(out["costs"] < 0)
+    if neg.size:
+        first = ", ".join(f"row {i}: {out['costs'][i]:g}" for i in neg[:3])
+        raise _fail(path, "costs", f"{neg.size} rows hold negative costs ({first}); DSRL's costs "
+                    "are >= 0, and a safety limit on the episode cost (<= kappa) means nothing "
+                    "otherwise", "store each step's constraint violation as a cost >= 0 (a "
+                    "signed or shaped signal belongs in the rewards); " + regen)
     amax = float(np.abs(out["actions"]).max())
     if amax > ACTION_BOUND:
         raise _fail(path, "actions", f"values reach {amax:.3g}, outside the action box [-1, 1]",

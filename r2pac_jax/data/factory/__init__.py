@@ -126,6 +126,13 @@ def cache_dir() -> Path:
     return Path(os.environ.get("R2PAC_DATA_DIR", "~/.cache/r2pac_jax/datasets")).expanduser()
 
 
+def is_legacy_cache(path: Path) -> bool:
+    """A dataset cache written before directories were marked: every entry is a generated
+    file's (its name holds '-generated-': the file, card, plot, checks, partial state, lock)."""
+    return all("-generated-" in p.name or p.name.startswith(".write-test-")
+               for p in path.iterdir())
+
+
 def dataset_path(task: TaskSpec, seed: int, trajectories: int, source: str = "scripted",
                  env_steps: Optional[int] = None) -> Path:
     if source == "scripted":
@@ -252,8 +259,11 @@ def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: i
     check_at_least_one(trajectories=n, budget=env_steps,
                        checkpoint_every=learned.get("checkpoint_every"))
     path = dataset_path(task, seed, n, source, env_steps)
+    from r2pac_jax.io import claim_directory
+
+    # the cache must be new, empty or ours: a user's folder named by R2PAC_DATA_DIR is refused
+    claim_directory(path.parent, "data cache", legacy=is_legacy_cache)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
         probe = path.parent / f".write-test-{os.getpid()}"
         probe.write_text("")
         probe.unlink()
