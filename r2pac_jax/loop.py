@@ -253,9 +253,12 @@ class Run:
         """Train to the end (or stop after `stop_after` blocks, as an interruption would, and
         return None); with `resume`, continue from the latest checkpoint in the run directory.
         The directory is locked meanwhile: a second live process on it gets DirectoryBusy."""
-        claim_directory(self.out, "run", legacy=is_legacy_run)
+        # refused before the lock file is made; marked once the lock is held (a directory that
+        # another live process writes is left untouched)
+        claim_directory(self.out, "run", legacy=is_legacy_run, check_only=True)
         lock = lock_directory(self.out)
         try:
+            claim_directory(self.out, "run", legacy=is_legacy_run)
             return self._run(resume, stop_after)
         finally:
             lock.close()

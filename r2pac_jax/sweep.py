@@ -292,12 +292,20 @@ def _ray_group(sweep_path: str, task_override, group_id: str, out: str):
     return group_id
 
 
+_SWEEP_FILES = {"sweep.json", "cells", "groups", "curves", "table.csv", "table.md", ".lock"}
+
+
 def is_legacy_sweep(path: Path) -> bool:
-    """A sweep directory written before directories were marked: its sweep.json reads back."""
+    """A sweep directory written before directories were marked: its sweep.json reads back, or
+    it holds only what a sweep writes (its groups and cells, a report)."""
     try:
-        return "cells" in json.loads((path / "sweep.json").read_text())
+        if "cells" in json.loads((path / "sweep.json").read_text()):
+            return True
     except (OSError, ValueError, TypeError):
-        return False
+        pass
+    names = {p.name for p in path.iterdir()}
+    return bool(names & {"cells", "groups"}) and all(
+        n in _SWEEP_FILES or (n.startswith("score_vs_") and n.endswith(".png")) for n in names)
 
 
 def run_sweep(path, out=None, launcher: str = "local",

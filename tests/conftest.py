@@ -111,3 +111,28 @@ def reach_avoid_data(tmp_path_factory):
 
     arrays = reach_avoid.generate(60, seed=0)
     return validate(arrays, "reach_avoid_test")
+
+
+# The tiny r2pac run of the CLI's bad-input and fault tests: TINY's values as --set options.
+TINY_ARGV = ["--set", "steps=20", "--set", "batch_size=32", "--set", "hidden_dims=16,16",
+             "--set", "threshold_every=10", "--set", "checkpoint_every=10", "--set",
+             "flow_steps=4", "--set", "num_candidates=4", "--set", "threshold_subset=256",
+             "--set", "actor_hidden_dims=16,16", "--eval-episodes", "2", "--eval-every", "10",
+             "--seeds", "2", "--no-progress"]
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory, reach_avoid_data):
+    """A finished tiny r2pac run on ReachAvoid (2 seeds, 20 + 20 steps, checkpoints at 30 and 40
+    kept) and its dataset file, made once per test process: {"d": file, "run": dir}. Tests copy
+    it before changing anything in it."""
+    from r2pac_jax.data.dsrl import write_dsrl
+    from r2pac_jax.train import main
+
+    t = tmp_path_factory.mktemp("tiny_run")
+    d = t / "ra.hdf5"
+    write_dsrl(d, reach_avoid_data, attrs={"task": "ReachAvoid"})
+    run = t / "run"
+    assert main(["--task", "ReachAvoid", "--dataset", str(d), "--out", str(run), "--baselines",
+                 "none"] + TINY_ARGV) == 0
+    return dict(t=t, d=d, run=run)

@@ -12,12 +12,9 @@ import subprocess
 import sys
 
 import pytest
+from conftest import TINY_ARGV
 
-TINY = ["--set", "steps=20", "--set", "batch_size=32", "--set", "hidden_dims=16,16",
-        "--set", "threshold_every=10", "--set", "checkpoint_every=10", "--set", "flow_steps=4",
-        "--set", "num_candidates=4", "--set", "threshold_subset=256", "--set",
-        "actor_hidden_dims=16,16", "--eval-episodes", "2", "--eval-every", "10", "--seeds", "2",
-        "--no-progress"]
+TINY = TINY_ARGV
 
 T = "--task ReachAvoid".split()
 CASES = [
@@ -127,22 +124,19 @@ def _main(cli):
 
 
 @pytest.fixture(scope="module")
-def places(tmp_path_factory, reach_avoid_data):
+def places(tmp_path_factory, reach_avoid_data, tiny_run):
     import numpy as np
 
     from r2pac_jax.data.dsrl import write_dsrl
-    from r2pac_jax.train import main
 
     t = tmp_path_factory.mktemp("bad")
-    d = t / "ra.hdf5"
-    write_dsrl(d, reach_avoid_data, attrs={"task": "ReachAvoid"})
+    d = tiny_run["d"]
     arrays = reach_avoid_data.as_dict()
     unsafe = t / "unsafe.hdf5"
     write_dsrl(unsafe, dict(arrays, costs=np.ones_like(arrays["costs"])))
     f = t / "plain.txt"
     f.write_text("not a dataset\n")
-    run = t / "run"
-    assert main(T + ["--dataset", str(d), "--out", str(run), "--baselines", "none"] + TINY) == 0
+    run = tiny_run["run"]  # a finished run: no case may touch it
     killed = t / "killed"
     (killed).mkdir()
     for name in ("config.json", "lanes.json"):

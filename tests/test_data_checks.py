@@ -57,9 +57,9 @@ def test_fast_check_writes_its_file_and_names_what_failed(tmp_path, capsys):
     assert res["task"] == "ReachAvoid" and res["fast"] and not res["passed"]
     assert res["failed"] == ["best_return", "max_cost", "worst_return"]
     assert "failed: best_return, max_cost, worst_return" in out
-    (tmp_path / "x.hdf5").write_text("not hdf5")
+    (tmp_path / "x.hdf5").write_text("not hdf5")  # named as damaged, as `train` names it
     assert main(["check", str(tmp_path / "x.hdf5")]) == 2
-    assert "does not say its task" in capsys.readouterr().err
+    assert "x.hdf5: cannot be read as HDF5" in capsys.readouterr().err
 
 
 @pytest.mark.slow

@@ -15,29 +15,18 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from conftest import TINY_ARGV
 
 from r2pac_jax.io import MARKER
 
 T = ["--task", "ReachAvoid"]
-TINY = ["--set", "steps=20", "--set", "batch_size=32", "--set", "hidden_dims=16,16",
-        "--set", "threshold_every=10", "--set", "checkpoint_every=10", "--set", "flow_steps=4",
-        "--set", "num_candidates=4", "--set", "threshold_subset=256", "--set",
-        "actor_hidden_dims=16,16", "--eval-episodes", "2", "--eval-every", "10", "--seeds", "2",
-        "--no-progress", "--baselines", "none"]
+TINY = TINY_ARGV + ["--baselines", "none"]
 
 
-@pytest.fixture(scope="module")
-def finished(tmp_path_factory, reach_avoid_data):
-    """A tiny finished r2pac run (checkpoints at steps 30 and 40 kept) and its dataset."""
-    from r2pac_jax.data.dsrl import write_dsrl
-    from r2pac_jax.train import main
-
-    t = tmp_path_factory.mktemp("faults")
-    d = t / "ra.hdf5"
-    write_dsrl(d, reach_avoid_data, attrs={"task": "ReachAvoid"})
-    run = t / "run"
-    assert main(T + ["--dataset", str(d), "--out", str(run)] + TINY) == 0
-    return dict(t=t, d=d, run=run)
+@pytest.fixture
+def finished(tiny_run):
+    """The session's tiny finished run (conftest.tiny_run): copied before any change."""
+    return tiny_run
 
 
 def _copy(run, dest):
@@ -191,7 +180,7 @@ def test_memory_need_is_xlas_count_and_grows_with_lanes(reach_avoid_data):
     from r2pac_jax.tasks import get_task
 
     task = get_task("ReachAvoid")
-    cfg = tiny_config()
+    cfg = tiny_config("bc-all-mlp")  # the cheapest to compile; the analysis is the loop's
     _, init, blocks, _ = compiled(cfg, task.obs_dim, task.act_dim)
     data = make_data(cfg, task, reach_avoid_data)
     needs = {}
@@ -229,13 +218,13 @@ def test_too_many_lanes_are_refused_before_anything_is_allocated(finished, capsy
 
     monkeypatch.setattr(memory, "available", lambda: (8 * 2**20, "a test's 8 MiB"))
     out = finished["t"] / "toomany"
-    argv = T + ["--dataset", str(finished["d"]), "--out", str(out)] + TINY
+    argv = T + ["--dataset", str(finished["d"]), "--out", str(out)] + MLP + ["--set", "steps=20"]
     argv[argv.index("--seeds") + 1] = "5000"
     rc = main(argv)
     err = capsys.readouterr().err
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert rc == 2 and len(lines) == 1, err
-    assert re.search(r"ReachAvoid r2pac: 5000 lanes need about [\d.]+ (MiB|GiB)", lines[0])
+    assert re.search(r"ReachAvoid bc-all-mlp: 5000 lanes need about [\d.]+ (MiB|GiB)", lines[0])
     assert "8 MiB available (a test's 8 MiB)" in lines[0] and "lanes fit" in lines[0]
     assert not (out / "checkpoints").exists() or not any((out / "checkpoints").iterdir())
 
@@ -256,13 +245,18 @@ def _default_sigint():
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
+# The cheapest algorithm to compile: what is tested is the CLI and the loop, shared by all.
+MLP = ["--algo", "bc-all-mlp", "--set", "batch_size=32", "--set", "hidden_dims=16,16",
+       "--set", "threshold_every=10", "--eval-episodes", "2", "--seeds", "2", "--no-progress",
+       "--baselines", "none"]
+
+
 @pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")  # preexec_fn; the child execs
-def test_ctrl_c_prints_one_line_and_the_command_that_resumes(finished, data_dir):
+def test_ctrl_c_prints_one_line_and_the_command_that_resumes(finished, data_dir, capsys):
     out = finished["t"] / "ctrlc"
-    sets = list(TINY)
-    sets[sets.index("steps=20")] = "steps=4000"
     cmd = [sys.executable, "-m", "r2pac_jax.train"] + T + [
-        "--dataset", str(finished["d"]), "--out", str(out)] + sets
+        "--dataset", str(finished["d"]), "--out", str(out)] + MLP + [
+        "--set", "steps=3000", "--set", "checkpoint_every=100", "--eval-every", "3000"]
     env = dict(os.environ)
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          preexec_fn=_default_sigint, env=env)
@@ -278,25 +272,19 @@ def test_ctrl_c_prints_one_line_and_the_command_that_resumes(finished, data_dir)
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert p.returncode == 130, err[-3000:]
     assert len(lines) == 1 and "Traceback" not in err, err[-3000:]
-    m = re.match(r"interrupted: ReachAvoid r2pac at step (\d+) of 8000; its last checkpoint is "
+    m = re.match(r"interrupted: ReachAvoid bc-all-mlp at step (\d+) of 3000; its last checkpoint is "
                  r"step (\d+) \(.*\); continue with: (.*)$", lines[0])
     assert m, lines[0]
     reached, saved = int(m.group(1)), int(m.group(2))
-    assert 0 < saved <= reached < 8000
+    assert 0 < saved <= reached < 3000
     resume = shlex.split(m.group(3))
     assert resume[:3] == ["python", "-m", "r2pac_jax.train"] and "--resume" in resume
-    # the printed command continues the run from that checkpoint
-    resume = [sys.executable] + resume[1:]
-    p = subprocess.Popen(resume, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         preexec_fn=_default_sigint, env=env)
-    deadline = time.time() + 300
-    while time.time() < deadline and p.poll() is None:
-        log = out / "metrics.jsonl"
-        if log.exists() and any(json.loads(x)["step"] > saved
-                                for x in log.read_text().splitlines() if x.strip()):
-            break
-        time.sleep(0.1)
-    p.send_signal(signal.SIGINT)
-    o2, err2 = p.communicate(timeout=120)
-    assert f"resuming {out} from step {saved}" in o2, (o2[-2000:], err2[-2000:])
-    assert p.returncode == 130 and "Traceback" not in err2, err2[-2000:]
+    # the printed command continues the run from that checkpoint to its end (in this process:
+    # a second interpreter would double the test's time)
+    from r2pac_jax.train import main
+
+    assert main(resume[3:]) == 0
+    assert f"resuming {out} from step {saved}" in capsys.readouterr().out
+    rows = [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines()]
+    assert sorted(r["step"] for r in rows if r["lane"] == 0) == list(range(10, 3001, 10))
+    assert json.loads((out / "results.json").read_text())["resumed_from_step"] == saved

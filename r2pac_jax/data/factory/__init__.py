@@ -259,10 +259,17 @@ def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: i
     check_at_least_one(trajectories=n, budget=env_steps,
                        checkpoint_every=learned.get("checkpoint_every"))
     path = dataset_path(task, seed, n, source, env_steps)
-    from r2pac_jax.io import claim_directory
+    from r2pac_jax.io import ForeignDirectory, WriteError, claim_directory
 
-    # the cache must be new, empty or ours: a user's folder named by R2PAC_DATA_DIR is refused
-    claim_directory(path.parent, "data cache", legacy=is_legacy_cache)
+    try:
+        # the cache must be new, empty or ours: a user's folder named by R2PAC_DATA_DIR is
+        # refused (ForeignDirectory passes through with its own message)
+        claim_directory(path.parent, "data cache", legacy=is_legacy_cache)
+    except ForeignDirectory:
+        raise
+    except WriteError as e:
+        raise FactoryError(f"cache directory {path.parent} is not writable ({e}); set "
+                           "R2PAC_DATA_DIR to a writable directory") from e
     try:
         probe = path.parent / f".write-test-{os.getpid()}"
         probe.write_text("")
