@@ -28,23 +28,48 @@ class MemoryPolicy(NamedTuple):
     observe: Callable
 
 
-Policy = Union[Callable, MemoryPolicy]
+class InfoPolicy(NamedTuple):
+    """A stateless policy that also reports diagnostics of each state it acts in:
+    act_info(params, obs[B, o], key) -> (action[B, a], {name: [B] float})."""
+
+    act_info: Callable
 
 
-def policy_of(agent) -> Policy:
-    """What evaluation runs for an agent: its memory triple if it has one, else `act`."""
+Policy = Union[Callable, MemoryPolicy, InfoPolicy]
+
+
+def policy_of(agent, diagnostics: bool = False) -> Policy:
+    """What evaluation runs for an agent: its memory triple if it has one; with `diagnostics`,
+    its `act_info` where it has one; else `act`."""
     if all(hasattr(agent, n) for n in ("memory_init", "act_memory", "observe")):
         return MemoryPolicy(agent.memory_init, agent.act_memory, agent.observe)
+    if diagnostics and hasattr(agent, "act_info"):
+        return InfoPolicy(agent.act_info)
     return agent.act
 
 
-def _as_memory_policy(policy: Policy) -> MemoryPolicy:
-    """A stateless policy as a memory policy with an empty memory (the same computation)."""
+class _Stepper(NamedTuple):
+    """Every policy in one form: init(p, obs) -> mem; step(p, obs, key, mem) -> (action, mem,
+    info {name: [B]}); observe(p, mem, reward, cost) -> mem."""
+
+    init: Callable
+    step: Callable
+    observe: Callable
+
+
+def _stepper(policy: Policy) -> _Stepper:
+    """A policy of any form as a _Stepper (the same computation; no info but an InfoPolicy's)."""
     if isinstance(policy, MemoryPolicy):
-        return policy
-    return MemoryPolicy(init=lambda p, obs: (),
-                        act=lambda p, obs, k, mem: (policy(p, obs, k), mem),
-                        observe=lambda p, mem, r, c: mem)
+        return _Stepper(policy.init, lambda p, obs, k, mem: policy.act(p, obs, k, mem) + ({},),
+                        policy.observe)
+    if isinstance(policy, InfoPolicy):
+        def step(p, obs, k, mem):
+            action, info = policy.act_info(p, obs, k)
+            return action, mem, info
+
+        return _Stepper(lambda p, obs: (), step, lambda p, mem, r, c: mem)
+    return _Stepper(lambda p, obs: (), lambda p, obs, k, mem: (policy(p, obs, k), mem, {}),
+                    lambda p, mem, r, c: mem)
 
 
 def dsrl_scores(mean_return, mean_cost, task: TaskSpec):
@@ -66,28 +91,38 @@ def _freeze(alive, new, old):
 
 
 def rollout(policy_fn: Policy, params, env, key: jax.Array, episodes: int) -> dict:
-    """All episodes of one policy in parallel (JAX env; jittable): arrays [E]."""
-    pol = _as_memory_policy(policy_fn)
+    """All episodes of one policy in parallel (JAX env; jittable): arrays [E].
+
+    returns, costs, lengths, terminals (the episode ended by a true terminal, not the time
+    limit) and, for an InfoPolicy, `diag_NAME`: the sum of each diagnostic over the episode's
+    states (divided by the lengths, it is a mean over visited states)."""
+    pol = _stepper(policy_fn)
     k_reset, k_act = jax.random.split(key)
     state = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
     zeros = jnp.zeros((episodes,), jnp.float32)
+    mem0 = pol.init(params, state.obs)
+    names = jax.eval_shape(lambda: pol.step(params, state.obs, k_act, mem0)[2]).keys()
 
     def body(carry, k):
-        state, mem, alive, ret, cost, length = carry
-        action, mem = pol.act(params, state.obs, k, mem)
+        state, mem, alive, ret, cost, length, term, diag = carry
+        action, mem, info = pol.step(params, state.obs, k, mem)
         new = jax.vmap(env.step)(state, action)
         mem = pol.observe(params, mem, new.reward, new.cost)
         ret = ret + jnp.where(alive, new.reward, 0.0)
         cost = cost + jnp.where(alive, new.cost, 0.0)
         length = length + alive.astype(jnp.int32)
+        term = term | (alive & new.terminated)
+        diag = {n: diag[n] + jnp.where(alive, info[n], 0.0) for n in diag}
         state = _freeze(alive, new, state)
-        return (state, mem, alive & ~new.done, ret, cost, length), None
+        return (state, mem, alive & ~new.done, ret, cost, length, term, diag), None
 
-    init = (state, pol.init(params, state.obs), jnp.ones((episodes,), bool), zeros, zeros,
-            jnp.zeros((episodes,), jnp.int32))
-    (_, _, _, ret, cost, length), _ = jax.lax.scan(body, init,
-                                                   jax.random.split(k_act, env.episode_len))
-    return dict(returns=ret, costs=cost, lengths=length)
+    init = (state, mem0, jnp.ones((episodes,), bool), zeros, zeros,
+            jnp.zeros((episodes,), jnp.int32), jnp.zeros((episodes,), bool),
+            {n: zeros for n in names})
+    (_, _, _, ret, cost, length, term, diag), _ = jax.lax.scan(
+        body, init, jax.random.split(k_act, env.episode_len))
+    return dict(returns=ret, costs=cost, lengths=length, terminals=term,
+                **{f"diag_{n}": v for n, v in diag.items()})
 
 
 def _step_live(env, state, actions: np.ndarray, alive: np.ndarray):
@@ -104,10 +139,10 @@ def _step_live(env, state, actions: np.ndarray, alive: np.ndarray):
     return put_rows(state, rows, env.step_batch(take_rows(state, rows), actions[rows]))
 
 
-def _rollout_python(policy_lanes: MemoryPolicy, lane_params, env, keys: jax.Array,
+def _rollout_python(policy_lanes: _Stepper, lane_params, env, keys: jax.Array,
                     episodes: int):
     """Lanes x episodes stepped from Python (non-JAX physics), the policy's three functions
-    jitted and vmapped over lanes: arrays [L, E]."""
+    jitted and vmapped over lanes: arrays [L, E], as `rollout`'s."""
     L = keys.shape[0]
     n = L * episodes
     k_reset, k_act = jax.vmap(lambda k: jax.random.split(k), out_axes=1)(keys)
@@ -121,10 +156,14 @@ def _rollout_python(policy_lanes: MemoryPolicy, lane_params, env, keys: jax.Arra
     # than a step of one live episode
     step_keys = np.asarray(jax.vmap(lambda k: jax.random.split(k, env.episode_len),
                                     out_axes=1)(k_act))
+    term = np.zeros(n, bool)
+    diag: dict = {}
     mem = policy_lanes.init(lane_params, np.asarray(state.obs).reshape(L, episodes, -1))
     for t in range(env.episode_len):
         obs = np.asarray(state.obs).reshape(L, episodes, -1)
-        action, mem = policy_lanes.act(lane_params, obs, step_keys[t], mem)
+        action, mem, info = policy_lanes.step(lane_params, obs, step_keys[t], mem)
+        for name, v in info.items():
+            diag[name] = diag.get(name, 0.0) + np.where(alive, np.asarray(v).reshape(n), 0.0)
         state = _step_live(env, state, np.asarray(action).reshape(n, -1), alive)
         mem = policy_lanes.observe(lane_params, mem,
                                    np.asarray(state.reward, np.float32).reshape(L, episodes),
@@ -132,19 +171,24 @@ def _rollout_python(policy_lanes: MemoryPolicy, lane_params, env, keys: jax.Arra
         ret += np.where(alive, np.asarray(state.reward), 0.0)
         cost += np.where(alive, np.asarray(state.cost), 0.0)
         length += alive
+        term |= alive & np.asarray(state.terminated)
         alive &= ~np.asarray(state.terminated | state.truncated)
         if not alive.any():
             break
     shape = (L, episodes)
     return dict(returns=ret.reshape(shape), costs=cost.reshape(shape),
-                lengths=length.reshape(shape))
+                lengths=length.reshape(shape), terminals=term.reshape(shape),
+                **{f"diag_{k}": v.reshape(shape) for k, v in diag.items()})
 
 
 class LaneEvaluator:
     """Evaluates L parameter sets ("lanes": seeds x hyperparameter cells) at once.
 
-    `__call__(lane_params, keys[L])` returns numpy arrays `returns`, `costs`, `lengths` [L, E]
-    and `normalized_reward`, `normalized_cost` [L]. Built once; the rollout compiles once.
+    `__call__(lane_params, keys[L])` returns numpy arrays `returns`, `costs`, `lengths`,
+    `terminals` [L, E], `normalized_reward`, `normalized_cost`, `mean_length`,
+    `terminal_share` [L] and `diagnostics` {name: [L]} (an InfoPolicy's diagnostics, each a
+    mean over the states the lane's episodes visited; {} for other policies). Built once; the
+    rollout compiles once.
     """
 
     def __init__(self, policy_fn: Policy, task: TaskSpec, episodes: int = 20, env=None,
@@ -156,8 +200,7 @@ class LaneEvaluator:
             self._run = jax.jit(jax.vmap(
                 lambda p, k: rollout(policy_fn, p, self.env, k, episodes)))
         else:
-            pol = _as_memory_policy(policy_fn)
-            self._policy_lanes = MemoryPolicy(*(jax.jit(jax.vmap(f)) for f in pol))
+            self._policy_lanes = _Stepper(*(jax.jit(jax.vmap(f)) for f in _stepper(policy_fn)))
             self._run = self._run_python
 
     def _run_python(self, lane_params, keys):
@@ -183,6 +226,11 @@ class LaneEvaluator:
         out = {k: np.asarray(v) for k, v in self._run(lane_params, keys).items()}
         nr, nc = dsrl_scores(out["returns"].mean(-1), out["costs"].mean(-1), self.task)
         out["normalized_reward"], out["normalized_cost"] = nr, nc
+        out["mean_length"] = out["lengths"].mean(-1)
+        out["terminal_share"] = out["terminals"].mean(-1)
+        visited = np.maximum(out["lengths"].sum(-1), 1)
+        out["diagnostics"] = {k[5:]: out.pop(k).sum(-1) / visited
+                              for k in [k for k in out if k.startswith("diag_")]}
         return out
 
 
@@ -193,7 +241,8 @@ def evaluate(policy_fn: Callable, params, task, episodes: int = 20,
     key = jax.random.PRNGKey(0) if key is None else key
     lane_params = jax.tree_util.tree_map(lambda x: jnp.asarray(x)[None], params)
     out = LaneEvaluator(policy_fn, task, episodes, env=env, physics=physics)(lane_params, key[None])
-    res = {k: v[0] for k, v in out.items()}
+    res = {k: ({n: float(x[0]) for n, x in v.items()} if k == "diagnostics" else v[0])
+           for k, v in out.items()}
     res["normalized_reward"] = float(res["normalized_reward"])
     res["normalized_cost"] = float(res["normalized_cost"])
     return res
@@ -208,17 +257,22 @@ def eval_keys(seeds, step: int) -> jax.Array:
 
 def evaluate_run(run_dir, episodes: int = 20, selection: Optional[str] = None,
                  guidance_scale: Optional[float] = None, num_candidates: Optional[int] = None,
-                 physics: str = "auto", seed: int = 123) -> dict:
+                 physics: str = "auto", seed: int = 123, diagnostics: bool = True) -> dict:
     """Re-evaluate every lane of a finished run under other inference settings.
 
     The trained parameters are not touched: candidate selection, guidance scale and the number
     of candidates only act at sampling time (algorithms without them refuse them by name).
-    Returns per-lane arrays as `LaneEvaluator` does.
+    Returns per-lane arrays as `LaneEvaluator` does (with the policy's diagnostics; V_c > l is
+    not among them here: the saved policy holds no V_c).
     """
     from r2pac_jax.agents import make_agent
+    from r2pac_jax.config import ConfigError
     from r2pac_jax.policy import read_run
 
     cfg, lanes = read_run(run_dir)
+    if selection is not None and "selection" not in cfg.flat():
+        raise ConfigError(f"--selection: {cfg.algo}'s policy draws no candidates to select "
+                          "among (R2PAC's flow policies do); leave --selection out")
     changes = {k: v for k, v in dict(selection=selection, num_candidates=num_candidates).items()
                if v is not None}
     if changes:
@@ -236,13 +290,50 @@ def evaluate_run(run_dir, episodes: int = 20, selection: Optional[str] = None,
             raise ConfigError(f"{cfg.algo} has no guidance scale to change")
         pp["guidance"] = jnp.full_like(pp["guidance"], guidance_scale)
     keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(seed), s) for s in lanes["seeds"]])
-    out = LaneEvaluator(policy_of(agent), task, episodes, physics=physics)(pp, keys)
+    out = LaneEvaluator(policy_of(agent, diagnostics), task, episodes, physics=physics)(pp, keys)
     out["seeds"] = lanes["seeds"]
     return out
 
 
+def selection_rules(run_dir) -> tuple[str, ...]:
+    """The selection rules a run's policy can be re-evaluated under: () for a policy without
+    candidates, else the trained rule first, then the others."""
+    from r2pac_jax.agents.selection import RULES
+    from r2pac_jax.policy import read_run
+
+    cfg, _ = read_run(run_dir)
+    flat = cfg.flat()
+    if "selection" not in flat or flat.get("actor") == "awr_gaussian":
+        return ()
+    return (flat["selection"],) + tuple(r for r in RULES if r != flat["selection"])
+
+
+def _mean_std(x) -> str:
+    x = np.asarray(x, float)
+    return f"{np.nanmean(x):.2f} ± {np.nanstd(x):.2f}"
+
+
+def selection_table(results: dict, trained: str) -> str:
+    """A markdown table of {rule: evaluate_run output}, one row per rule."""
+    cols = [("not_first", "not the first"), ("qr_given_up", "Qbar_r given up"),
+            ("qc_spread", "Q_c spread"), ("qr_spread", "Qbar_r spread")]
+    head = ("| selection | reward | cost | ended by a terminal | episode length | "
+            + " | ".join(c[1] for c in cols) + " |")
+    lines = [head, "|" + "---|" * (5 + len(cols))]
+    for rule, out in results.items():
+        cells = [rule + (" (trained)" if rule == trained else ""),
+                 _mean_std(out["normalized_reward"]), _mean_std(out["normalized_cost"]),
+                 f"{np.mean(out['terminal_share']):.2f}", f"{np.mean(out['mean_length']):.1f}"]
+        cells += [f"{np.mean(out['diagnostics'][k]):.3g}" if k in out["diagnostics"] else "-"
+                  for k, _ in cols]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
-    """`python -m r2pac_jax.evaluate RUN_DIR [--selection RULE] [--guidance W] [--episodes N]`."""
+    """`python -m r2pac_jax.evaluate RUN_DIR [--selection RULE] [--guidance W] [--episodes N]`:
+    without --selection, a policy with candidates is evaluated under every selection rule and
+    the rules are set side by side (scores, terminals, the choice's diagnostics)."""
     import argparse
 
     ap = argparse.ArgumentParser(prog="python -m r2pac_jax.evaluate",
@@ -265,16 +356,24 @@ def main(argv=None) -> int:
             raise ConfigError(f"--episodes must be >= 1, got {args.episodes}")
         if args.candidates is not None and args.candidates < 1:
             raise ConfigError(f"--candidates must be >= 1, got {args.candidates}")
-        out = evaluate_run(args.run_dir, args.episodes, args.selection, args.guidance,
-                           args.candidates, args.physics)
+        rules = () if args.selection else selection_rules(args.run_dir)
+        results = {r: evaluate_run(args.run_dir, args.episodes, r, args.guidance,
+                                   args.candidates, args.physics)
+                   for r in (rules or (args.selection,))}
     except (ConfigError, FileNotFoundError, UnknownTaskError, EnvUnavailableError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    nr, nc = out["normalized_reward"], out["normalized_cost"]
-    for s, r, c in zip(out["seeds"], nr, nc):
-        print(f"seed {s}: normalized reward {r:.3f}, normalized cost {c:.3f}")
-    print(f"mean: normalized reward {np.mean(nr):.3f} ± {np.std(nr):.3f}, "
-          f"normalized cost {np.mean(nc):.3f} ± {np.std(nc):.3f}")
+    for rule, out in results.items():
+        if len(results) > 1:
+            print(f"selection {rule}:")
+        nr, nc = out["normalized_reward"], out["normalized_cost"]
+        for s, r, c, t in zip(out["seeds"], nr, nc, out["terminal_share"]):
+            print(f"seed {s}: normalized reward {r:.3f}, normalized cost {c:.3f}, episodes "
+                  f"ended by a terminal {t:.2f}")
+        print(f"mean: normalized reward {np.mean(nr):.3f} ± {np.std(nr):.3f}, "
+              f"normalized cost {np.mean(nc):.3f} ± {np.std(nc):.3f}")
+    if len(results) > 1:
+        print("\n" + selection_table(results, rules[0]))
     return 0
 
 

@@ -136,11 +136,20 @@ def compiled(cfg: Config, obs_dim: int, act_dim: int):
 
 
 @functools.lru_cache(maxsize=16)
-def lane_evaluator(cfg: Config, task: TaskSpec, episodes: int, physics: str):
+def lane_evaluator(cfg: Config, task: TaskSpec, episodes: int, physics: str,
+                   diagnostics: bool = True):
     from r2pac_jax.evaluate import LaneEvaluator, policy_of
 
     agent = compiled(cfg, task.obs_dim, task.act_dim)[0]
-    return LaneEvaluator(policy_of(agent), task, episodes, physics=physics)
+    return LaneEvaluator(policy_of(agent, diagnostics), task, episodes, physics=physics)
+
+
+@functools.lru_cache(maxsize=16)
+def diagnostic_params(cfg: Config, obs_dim: int, act_dim: int):
+    """Jitted, lane-vmapped `diagnostic_params` of cfg's agent (its policy_params where it has
+    none): what evaluation with diagnostics acts on."""
+    agent = compiled(cfg, obs_dim, act_dim)[0]
+    return jax.jit(jax.vmap(getattr(agent, "diagnostic_params", agent.policy_params)))
 
 
 def check_run(cfg: Config, task: TaskSpec, ds: Dataset) -> None:
@@ -178,9 +187,12 @@ class Run:
 
     def __init__(self, cfg: Config, task: TaskSpec, ds: Dataset, out_dir, lanes: Lanes,
                  physics: str = "auto", progress: bool = True, log: Callable[[str], None] = print,
-                 dataset_label: str = "", nonfinite: str = "stop"):
+                 dataset_label: str = "", nonfinite: str = "stop", diagnostics: bool = True):
         """nonfinite: "stop" (a block with a NaN/inf metric stops the run) or "mark" (sweeps:
-        the diverged lanes are recorded, reported without scores, and the others finish)."""
+        the diverged lanes are recorded, reported without scores, and the others finish).
+        diagnostics: evaluation also logs the policy's diagnostics (R2PAC: its candidates'
+        spread, the reward the choice gives up, V_c > l); they consume no random key, so every
+        score is the same without them."""
         if nonfinite not in ("stop", "mark"):
             raise ValueError(f"nonfinite must be 'stop' or 'mark', got {nonfinite!r}")
         self.nonfinite = nonfinite
@@ -197,8 +209,13 @@ class Run:
         self.agent.check_data(task, ds)
         self.data = self.agent.make_data(task, ds)
         self.dataset_info = dict(source=ds.source, sha256=ds.digest(), transitions=int(ds.size))
-        self.evaluator = (lane_evaluator(cfg, task, cfg.eval_episodes, physics)
+        self.evaluator = (lane_evaluator(cfg, task, cfg.eval_episodes, physics, diagnostics)
                           if cfg.eval_episodes > 0 else None)
+        self._eval_params = (diagnostic_params(cfg, task.obs_dim, task.act_dim) if diagnostics
+                             else self._policy_params)
+        note = getattr(self.agent, "diagnostics_note", lambda: None)()
+        if diagnostics and self.evaluator is not None and note:
+            log(f"note: {note}")
 
     # schedule ---------------------------------------------------------------------------------
     @property
@@ -213,8 +230,14 @@ class Run:
         return last or phase_step % self.cfg.eval_every == 0
 
     def check_memory(self) -> None:
-        """Refuse, before anything is allocated, lanes that do not fit in memory (memory.py)."""
+        """Refuse, before anything is allocated, lanes that do not fit in memory (memory.py);
+        R2PAC_MEMORY_CHECK=off skips it."""
+        import os
+
         from r2pac_jax.memory import block_need, check_fits
+
+        if os.environ.get("R2PAC_MEMORY_CHECK", "on").lower() in ("off", "0", "false"):
+            return
 
         need = block_need(self._init, self._blocks, self.lanes.hp, self.data, self.lanes.size)
         check_fits(need, f"{self.task.name} {self.cfg.algo}",
@@ -229,7 +252,7 @@ class Run:
         a healthy lane's parameters stand in for them so that the batch keeps its shape)."""
         from r2pac_jax.evaluate import eval_keys
 
-        pp = self._policy_params(state, self.lanes.hp)
+        pp = self._eval_params(state, self.lanes.hp)
         bad = sorted(self.diverged)
         good = [i for i in range(self.lanes.size) if i not in self.diverged]
         if bad and good:
@@ -237,15 +260,22 @@ class Run:
             pp = jax.tree_util.tree_map(lambda x: x[idx], pp)
         if bad and not good:
             shape = (self.lanes.size, self.cfg.eval_episodes)
-            res = {k: np.full(shape, np.nan) for k in ("returns", "costs", "lengths")}
-            res.update(normalized_reward=np.full(shape[0], np.nan),
-                       normalized_cost=np.full(shape[0], np.nan))
+            res = {k: np.full(shape, np.nan) for k in ("returns", "costs", "lengths",
+                                                         "terminals")}
+            res.update({k: np.full(shape[0], np.nan) for k in (
+                "normalized_reward", "normalized_cost", "mean_length", "terminal_share")})
+            res["diagnostics"] = {}
             return res
         res = dict(self.evaluator(pp, eval_keys(self.lanes.seeds, step)))
+
+        def blank(a):
+            a = np.array(a, dtype=float)
+            a[bad] = np.nan
+            return a
+
         if bad:
-            for k in res:
-                res[k] = np.array(res[k], dtype=float)
-                res[k][bad] = np.nan
+            res = {k: ({n: blank(x) for n, x in v.items()} if k == "diagnostics" else blank(v))
+                   for k, v in res.items()}
         return res
 
     # main loop ---------------------------------------------------------------------------------
@@ -372,7 +402,10 @@ class Run:
                             normalized_reward=float(res["normalized_reward"][lane]),
                             normalized_cost=float(res["normalized_cost"][lane]),
                             mean_return=float(res["returns"][lane].mean()),
-                            mean_cost=float(res["costs"][lane].mean())),
+                            mean_cost=float(res["costs"][lane].mean()),
+                            mean_length=float(res["mean_length"][lane]),
+                            terminal_share=float(res["terminal_share"][lane]),
+                            **{k: float(v[lane]) for k, v in res["diagnostics"].items()}),
                             tb_prefix=f"eval/lane{lane}")
                 if last or step % cfg.checkpoint_every == 0:
                     with sigint_deferred():  # Ctrl-C waits for the save to finish

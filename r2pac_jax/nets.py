@@ -39,14 +39,17 @@ class QEnsemble(nn.Module):
 
 
 class ValueNet(nn.Module):
-    """V(s): obs [B, o] -> [B]."""
+    """V(s): obs [B, o] -> [B]; with `nonneg`, softplus of the last layer (a value of costs,
+    which are >= 0, cannot then extrapolate below 0)."""
 
     hidden_dims: Sequence[int]
     layer_norm: bool = False
+    nonneg: bool = False
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
-        return MLP(self.hidden_dims, 1, self.layer_norm)(obs)[..., 0]
+        v = MLP(self.hidden_dims, 1, self.layer_norm)(obs)[..., 0]
+        return jax.nn.softplus(v) if self.nonneg else v
 
 
 NULL_LABEL = 2  # optimality label o in {0, 1, null}

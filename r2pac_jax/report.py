@@ -202,8 +202,14 @@ def plot_run(logs, out_dir, title: str, metric_keys: Sequence[str]) -> None:
         plot_curves(rows, keys, out_dir / "training.png", title)
     ev = logs.read("eval")
     if ev:
-        plot_curves(ev, ["normalized_reward", "normalized_cost"], out_dir / "eval.png",
-                    f"{title}: evaluation")
+        seen = {k for r in ev for k in r}
+        keys = ["normalized_reward", "normalized_cost"] + [k for k in EVAL_DIAGNOSTICS
+                                                           if k in seen]
+        plot_curves(ev, keys, out_dir / "eval.png", f"{title}: evaluation")
+
+
+# Evaluation diagnostics plotted beside the scores where a run logged them (evaluate.py)
+EVAL_DIAGNOSTICS = ("mean_length", "terminal_share", "not_first", "qr_given_up", "unsafe_state")
 
 
 # What the project's own experiments found about a task's defaults, printed under the main

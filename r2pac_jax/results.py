@@ -56,6 +56,11 @@ def run_results(cfg: Config, task_name: str, lanes: Lanes, summary: dict, ev: Op
                 mean_return=_stats(ev["returns"][idx].mean(-1)),
                 mean_cost=_stats(ev["costs"][idx].mean(-1)),
                 episodes=int(ev["returns"].shape[-1]))
+            if "terminal_share" in ev:  # where the episodes ended, and the policy's diagnostics
+                cell.update(mean_length=_stats(ev["mean_length"][idx]),
+                            terminal_share=_stats(ev["terminal_share"][idx]),
+                            diagnostics={k: _stats(v[idx]) for k, v in
+                                         ev.get("diagnostics", {}).items()})
             mean_cost = cell["normalized_cost"]["mean"]
             cell["safe"] = mean_cost is not None and bool(mean_cost < 1.0)
         out["cells"].append(cell)

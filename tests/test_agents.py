@@ -184,7 +184,7 @@ def test_mlp_cloner_resumes_bitwise_and_loads_as_a_policy(task, reach_avoid_data
     assert act(np.zeros(task.obs_dim, np.float32), jax.random.PRNGKey(0)).shape == (2,)
     ev = evaluate_run(tmp_path / "full", episodes=2)
     assert ev["returns"].shape == (2, 2)
-    with pytest.raises(ConfigError, match="bc-safe-mlp has no config key"):
+    with pytest.raises(ConfigError, match="bc-safe-mlp's policy draws no candidates"):
         evaluate_run(tmp_path / "full", episodes=2, selection="first")
     with pytest.raises(ConfigError, match="no guidance scale"):
         evaluate_run(tmp_path / "full", episodes=2, guidance_scale=1.0)

@@ -74,6 +74,8 @@ CASES = [
     ("evaluate", ["{damaged}"], 2, "config.json or lanes.json is damaged"),
     ("evaluate", ["{run}", "--episodes", "0"], 2, "--episodes must be >= 1"),
     ("evaluate", ["{run}", "--selection", "first", "--guidance", "1"], 0, "seed 1:"),
+    ("evaluate", ["{mlp}", "--selection", "first"], 2,
+     "--selection: bc-all-mlp's policy draws no candidates to select among"),
     # sweep
     ("sweep", ["{sweep_not_hdf5}"], 2, "cannot be read as HDF5"),
     ("sweep", ["{sweep_switch}"], 2, "reward_penalty is an algorithm switch"),
@@ -163,13 +165,19 @@ def places(tmp_path_factory, reach_avoid_data, tiny_run):
     sweepdir = t / "sweepdir"
     sweepdir.mkdir()
     (sweepdir / ".r2pac_jax.json").write_text('{"kind": "sweep"}\n')
+    mlp = t / "mlp"  # a bc-all-mlp run's description (refused before anything is loaded)
+    mlp.mkdir()
+    from conftest import tiny_config
+
+    (mlp / "config.json").write_text(tiny_config("bc-all-mlp").to_json())
+    (mlp / "lanes.json").write_text(json.dumps(dict(seeds=[0], cells=[0], cell_hparams=[{}])))
     sweep_ok = t / "s4.toml"
     sweep_ok.write_text(f'task = "ReachAvoid"\ndataset = "{d}"\n[grid]\nchunk_len = [1, 2]\n')
     sweep_physics = t / "s3.toml"
     sweep_physics.write_text('task = "ReachAvoid"\nphysics = "mjx"\n[grid]\nchunk_len = [1, 2]\n')
     return dict(t=t, d=d, f=f, run=run, killed=killed, damaged=damaged, unsafe=unsafe,
                 negcost=negcost, truncated=truncated, userdir=userdir, sweepdir=sweepdir,
-                sweep_ok=sweep_ok,
+                sweep_ok=sweep_ok, mlp=mlp,
                 sweep_not_hdf5=sweep_not_hdf5, sweep_switch=sweep_switch,
                 sweep_physics=sweep_physics)
 

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from r2pac_jax.agents import critics, extraction, flow, gaussian
+from r2pac_jax.agents import critics, diagnostics, extraction, flow, gaussian
 from r2pac_jax.agents.base import (ChunkAlgorithm, check_act, check_obs, check_positive,
                                    check_sizes, soft_update)
 from r2pac_jax.agents.selection import select_candidate
@@ -31,7 +31,9 @@ class R2PACConfig:
     lr: float = 3e-4
     hidden_dims: tuple = (128, 128, 128)
     actor_hidden_dims: tuple = (128, 128, 128)  # the AWR Gaussian actor: a 3-layer MLP
-    layer_norm: bool = False
+    layer_norm: bool = False  # LayerNorm in the critics and the velocity field
+    critic_layer_norm: bool = False  # LayerNorm in the critics only (Q_c, V_c, Qbar_r, V_r)
+    vc_nonneg: bool = False  # V_c >= 0 (softplus output): costs are >= 0
     schedule: str = "two_phase"  # two_phase (critics, then policy) | joint
     # IQL critics
     expectile: float = 0.9
@@ -133,6 +135,9 @@ def validate(c: R2PACConfig) -> None:
             raise ConfigError(f"{k} must be >= 1, got {getattr(c, k)}")
     check_sizes("hidden_dims", c.hidden_dims)
     check_sizes("actor_hidden_dims", c.actor_hidden_dims)
+    if c.vc_nonneg and c.cost_critic == "hj":
+        raise ConfigError("vc_nonneg=true keeps a value of costs >= 0; the HJ feasibility critic "
+                          "(r2pac-hj) is signed: leave vc_nonneg out for it")
 
 
 @struct.dataclass
@@ -146,13 +151,18 @@ class AgentState:
 
 
 class Agent(ChunkAlgorithm):
-    plot_metrics = ("loss_qc", "loss_qr", "threshold", "loss_actor")
+    plot_metrics = ("loss_qc", "loss_qr", "threshold", "loss_actor", "qr_rmse_penalised",
+                    "qr_rmse_unpenalised", "corr_adv_r_reward_safe", "label_balance_safe",
+                    "label_balance_unsafe")
 
     def __init__(self, cfg, obs_dim: int, act_dim: int):
         super().__init__(cfg, obs_dim, act_dim)
         self.threshold_subset = cfg.threshold_subset
-        self.q_net = QEnsemble(cfg.hidden_dims, cfg.num_critics, cfg.layer_norm)
-        self.v_net = ValueNet(cfg.hidden_dims, cfg.layer_norm)
+        critic_ln = cfg.layer_norm or cfg.critic_layer_norm
+        self.q_net = QEnsemble(cfg.hidden_dims, cfg.num_critics, critic_ln)
+        self.v_net = ValueNet(cfg.hidden_dims, critic_ln)
+        # V_c has its own module only where it differs (the parameter tree stays the same)
+        self.vc_net = ValueNet(cfg.hidden_dims, critic_ln, nonneg=cfg.vc_nonneg)
         if self.is_gaussian:
             self.actor_net = GaussianActor(cfg.actor_hidden_dims, self.chunk_size)
         else:
@@ -175,7 +185,7 @@ class Agent(ChunkAlgorithm):
         chunk = jnp.zeros((1, self.chunk_size))
         params = {}
         params["qc"] = self.q_net.init(ks[0], obs, chunk)
-        params["vc"] = self.v_net.init(ks[1], obs)
+        params["vc"] = self.vc_net.init(ks[1], obs)
         params["qr"] = self.q_net.init(ks[2], obs, chunk)
         params["vr"] = self.v_net.init(ks[3], obs)
         if self.is_gaussian:
@@ -197,7 +207,7 @@ class Agent(ChunkAlgorithm):
         """l over the fixed subset of dataset states (0 for the HJ feasibility variant)."""
         if self.hj:
             return jnp.zeros(())
-        vc = self.v_net.apply(params["vc"], data.observations[data.threshold_states])
+        vc = self.vc_net.apply(params["vc"], data.observations[data.threshold_states])
         return critics.safety_threshold(vc, hp["quantile_alpha"])
 
     def begin_block(self, state: AgentState, hp: dict, data: ChunkedData) -> AgentState:
@@ -223,12 +233,12 @@ class Agent(ChunkAlgorithm):
         qc_t = q(tgt["qc"], obs, chunk).max(0)
 
         def vc_loss(p):
-            vc = v(p, obs)
+            vc = self.vc_net.apply(p, obs)
             return critics.reversed_expectile_loss(qc_t - vc, tau).mean(), vc
 
         (l_vc, vc), g = jax.value_and_grad(vc_loss, has_aux=True)(params["vc"])
         params["vc"], opt["vc"] = self._apply_grads(params, opt, "vc", g)
-        vc_next = v(params["vc"], nobs)
+        vc_next = self.vc_net.apply(params["vc"], nobs)
         if self.hj:
             qc_target = critics.feasibility_target(batch.zmax, batch.bootstrap, self.discount_h,
                                                    vc_next)
@@ -273,18 +283,26 @@ class Agent(ChunkAlgorithm):
 
         target = {k: soft_update(tgt[k], params[k], cfg.polyak) for k in ("qc", "qr")}
         unsafe_next = (vc_next > threshold) & (batch.bootstrap > 0)
+        # how Qbar_r fits its own (penalised) targets and the plain h-step reward targets: a
+        # penalty that dominates the fit leaves little reward signal in the CFG labels
+        qr_plain = critics.penalised_reward_target(
+            batch.reward, batch.bootstrap, self.discount_h, vr_next, vc_next, threshold,
+            penalty, use_penalty=False)
         metrics = dict(
             loss_vc=l_vc, loss_qc=l_qc, loss_vr=l_vr, loss_qr=l_qr,
             qc_mean=qc.mean(), vc_mean=vc.mean(), qr_mean=qr.mean(), vr_mean=vr.mean(),
             qr_target_mean=qr_target.mean(), threshold=threshold,
             safe_frac=(vc <= threshold).mean(), unsafe_next_frac=unsafe_next.mean(),
+            vc_min=vc.min(), qr_rmse_penalised=diagnostics.rmse(qr, qr_target),
+            qr_rmse_unpenalised=diagnostics.rmse(qr, qr_plain),
+            chunk_reward_std=batch.reward.std(),
         )
         new = state.replace(params=params, opt=opt, target=target, threshold=threshold)
         return new, metrics
 
     def _advantages(self, state: AgentState, obs, chunk):
         q, v, tgt, p = self.q_net.apply, self.v_net.apply, state.target, state.params
-        vc = v(p["vc"], obs)
+        vc = self.vc_net.apply(p["vc"], obs)
         safe = vc <= state.threshold
         adv_r = q(tgt["qr"], obs, chunk).min(0) - v(p["vr"], obs)
         adv_c = q(tgt["qc"], obs, chunk).max(0) - vc
@@ -300,10 +318,14 @@ class Agent(ChunkAlgorithm):
         labels = jnp.full((B,), NULL_LABEL, jnp.int32)
         safe, adv_r, adv_c = self._advantages(state, obs, chunk)
         metrics["actor_safe_frac"] = safe.mean()
+        # does the reward advantage in safe states track the chunk's own reward?
+        metrics["corr_adv_r_reward_safe"] = diagnostics.masked_corr(adv_r, batch.reward, safe)
         if cfg.actor == "cfg_flow":
             k_drop, key = jax.random.split(key)
             o = extraction.optimality_labels(safe, adv_r, adv_c, cfg.unsafe_branch)
             metrics["label_balance"] = o.mean()
+            metrics["label_balance_safe"] = diagnostics.masked_mean(o, safe)
+            metrics["label_balance_unsafe"] = diagnostics.masked_mean(o, ~safe)
             labels = extraction.drop_labels(k_drop, o, cfg.cfg_dropout)
         else:
             weights = extraction.awr_weights(safe, adv_r, adv_c, cfg.awr_temperature,
@@ -358,16 +380,48 @@ class Agent(ChunkAlgorithm):
             lambda *a: self.actor_net.apply(pp["actor"], *a), obs, key, k, self.chunk_size,
             self.cfg.flow_steps, pp["guidance"] if self.cfg.actor == "cfg_flow" else None)
 
+    def diagnostic_params(self, state: AgentState, hp: dict) -> dict:
+        """policy_params plus V_c (the share of visited states with V_c > l); evaluation in a
+        run uses these, the saved policy stays policy_params."""
+        return dict(self.policy_params(state, hp), vc=state.params["vc"])
+
+    def candidates(self) -> int:
+        """Candidate chunks the policy draws per state (1: no choice to diagnose)."""
+        if self.is_gaussian or self.cfg.selection == "first":
+            return 1
+        return self.cfg.num_candidates
+
+    def diagnostics_note(self):
+        """Why the candidate statistics are missing from this policy's diagnostics, or None."""
+        if self.candidates() > 1:
+            return None
+        why = ("the AWR Gaussian actor has no candidates" if self.is_gaussian else
+               "selection=first draws one candidate")
+        return f"candidate statistics skipped: {why}"
+
     def act(self, pp: dict, obs: jax.Array, key: jax.Array) -> jax.Array:
         """The policy: obs [B, obs_dim] -> first action of the chosen chunk [B, act_dim]."""
+        return self._act(pp, obs, key, info=False)
+
+    def act_info(self, pp: dict, obs: jax.Array, key: jax.Array):
+        """`act` and, per state, its diagnostics {name: [B]} (the same action, bit for bit: the
+        same computation, with statistics read off it and no extra random draw)."""
+        return self._act(pp, obs, key, info=True)
+
+    def _act(self, pp: dict, obs: jax.Array, key: jax.Array, info: bool):
         check_obs(obs, self.obs_dim)
         B = obs.shape[0]
+        stats = {}
+        if info and "vc" in pp:
+            stats["unsafe_state"] = (self.vc_net.apply(pp["vc"], obs) > pp["threshold"]
+                                     ).astype(jnp.float32)
         if self.is_gaussian:
             mean, _ = self.actor_net.apply(pp["actor"], obs)
-            return check_act(obs, mean.reshape(B, self.h, self.act_dim)[:, 0], self.obs_dim,
-                             self.act_dim)
+            action = check_act(obs, mean.reshape(B, self.h, self.act_dim)[:, 0], self.obs_dim,
+                               self.act_dim)
+            return (action, stats) if info else action
         rule = self.cfg.selection
-        k = 1 if rule == "first" else self.cfg.num_candidates
+        k = self.candidates()
         cands = self.sample_chunks(pp, obs, key, k)
         if k == 1:
             chosen = cands[:, 0]
@@ -375,9 +429,14 @@ class Agent(ChunkAlgorithm):
             obs_k = jnp.repeat(obs, k, axis=0)
             flat = cands.reshape(B * k, -1)
             qc = self.q_net.apply(pp["qc"], obs_k, flat).max(0).reshape(B, k)
+            need_qr = rule == "safe_then_reward" or info
             qr = (self.q_net.apply(pp["qr"], obs_k, flat).min(0).reshape(B, k)
-                  if rule == "safe_then_reward" else jnp.zeros_like(qc))
-            idx = select_candidate(qc, qr, pp["threshold"], rule)
+                  if need_qr else jnp.zeros_like(qc))
+            idx = select_candidate(qc, qr if rule == "safe_then_reward" else jnp.zeros_like(qc),
+                                   pp["threshold"], rule)
             chosen = jnp.take_along_axis(cands, idx[:, None, None], axis=1)[:, 0]
-        return check_act(obs, chosen.reshape(B, self.h, self.act_dim)[:, 0], self.obs_dim,
-                         self.act_dim)
+            if info:
+                stats.update(diagnostics.candidate_stats(qc, qr, idx))
+        action = check_act(obs, chosen.reshape(B, self.h, self.act_dim)[:, 0], self.obs_dim,
+                           self.act_dim)
+        return (action, stats) if info else action

@@ -1,0 +1,149 @@
+"""The decision rule of PROTOCOL.md, as code written before any decision run.
+
+    python experiments/r2pac_decision/decide.py [--runs runs/r2pac_decision]
+
+reads each cell's results.json (runs/r2pac_decision/seeds0-2/TASK/ID and, for the confirmation,
+seeds3-5/TASK/ID), prints the verdict with its numbers and writes them to
+experiments/r2pac_decision/decision.json. A cell not yet run is listed as missing: no verdict
+is taken on missing cells.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+from pathlib import Path
+
+DECISION_TASKS = ("HalfCheetahVelocity", "Walker2dVelocity", "HopperVelocity", "BallRun",
+                  "DroneRun", "CarGoal2", "PointGoal2")
+CONFIRMATION_TASKS = DECISION_TASKS + ("AntVelocity", "BallCircle", "CarButton1", "PointButton1")
+CANDIDATES = {"0": (), "a": ("critic_layer_norm=true",), "b": ("vc_nonneg=true",),
+              "c": ("critic_layer_norm=true", "vc_nonneg=true")}
+ORDER = ("a", "b", "c")  # ties go to the smaller change: a or b before c; a before b
+
+
+def qualifies(scores: dict, x: str, tasks) -> tuple[bool, dict]:
+    """scores[cand][task] = (R, C), means over seeds. Rule 1 of the protocol."""
+    flips = [t for t in tasks if scores["0"][t][1] < 1 <= scores[x][t][1]]
+    better = [t for t in tasks if scores[x][t][0] > scores["0"][t][0]]
+    need = math.ceil(5 * len(tasks) / 7)
+    gains = [scores[x][t][0] - scores["0"][t][0] for t in tasks]
+    return (not flips and len(better) >= need), dict(
+        made_unsafe=flips, reward_higher_on=better, needed=need,
+        median_gain=statistics.median(gains))
+
+
+def decide(scores: dict, tasks=DECISION_TASKS) -> dict:
+    """Rules 1-2: the winning candidate id, or None (the default stays), with the numbers."""
+    detail = {x: qualifies(scores, x, tasks) for x in ORDER}
+    ok = [x for x in ORDER if detail[x][0]]
+    winner = None
+    if ok:
+        best = max(round(detail[x][1]["median_gain"], 3) for x in ok)
+        winner = next(x for x in ORDER if x in ok
+                      and round(detail[x][1]["median_gain"], 3) == best)
+    return dict(winner=winner, candidates={x: dict(qualifies=q, **d)
+                                           for x, (q, d) in detail.items()})
+
+
+def confirm(scores: dict, winner: str, tasks=CONFIRMATION_TASKS) -> dict:
+    """Rule 3: the winner stands if it makes no safe task unsafe and raises the mean reward on
+    at least half of the comparisons."""
+    flips = [t for t in tasks if scores["0"][t][1] < 1 <= scores[winner][t][1]]
+    better = [t for t in tasks if scores[winner][t][0] > scores["0"][t][0]]
+    return dict(confirmed=not flips and 2 * len(better) >= len(tasks), made_unsafe=flips,
+                reward_higher_on=better, comparisons=len(tasks))
+
+
+def read_scores(root: Path, seeds: str, tasks, cands) -> tuple[dict, list]:
+    """{cand: {task: (R, C)}} from root/seeds/TASK/ID/results.json, and the missing cells."""
+    scores: dict = {c: {} for c in cands}
+    missing = []
+    for c in cands:
+        for t in tasks:
+            f = root / seeds / t / c / "results.json"
+            if not f.is_file():
+                missing.append(f"{seeds}/{t}/{c}")
+                continue
+            r = json.loads(f.read_text())
+            scores[c][t] = (r["normalized_reward"]["mean"], r["normalized_cost"]["mean"])
+    return scores, missing
+
+
+MANIFEST = Path(__file__).resolve().parents[1] / "table1" / "cpu-quick" / "manifest.json"
+
+
+def pin(task: str) -> dict:
+    """The pinned file of a task: {file, sha256 (of the arrays), version}."""
+    return json.loads(MANIFEST.read_text())["datasets"][task]
+
+
+def pinned_file(task: str, make: bool = True, log=print) -> Path:
+    """The task's pinned file in the data cache, made again first where missing (at the budget
+    its name records), and refused unless its arrays' digest is the pin."""
+    import re
+    import subprocess
+
+    from r2pac_jax.data import factory, load_dsrl
+    from r2pac_jax.tasks import get_task
+
+    want = pin(task)
+    path = factory.cache_dir() / want["file"]
+    if not path.is_file() and make:
+        m = re.search(r"-b(\d+)\.hdf5$", want["file"])
+        cmd = [sys.executable, "-m", "r2pac_jax.data", "make", "--task", task, "--source",
+               "ppo-lagrangian"] + (["--budget", m.group(1)] if m else [])
+        log(f"{task}: making {want['file']} again: {' '.join(cmd[1:])}")
+        subprocess.run(cmd, check=True)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: the pinned file of {task} is not on this machine")
+    t = get_task(task)
+    digest = load_dsrl(path, t.obs_dim, t.act_dim, t.name).digest()
+    if digest != want["sha256"]:
+        raise ValueError(f"{path}: its arrays' sha256 {digest[:12]}... is not the pin "
+                         f"{want['sha256'][:12]}...: the file did not regenerate bit for bit; "
+                         "PROTOCOL.md leaves the task out of the decision")
+    return path
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="decide.py")
+    ap.add_argument("--runs", default="runs/r2pac_decision")
+    ap.add_argument("--out", default=str(Path(__file__).with_name("decision.json")))
+    ap.add_argument("--file", metavar="TASK", help="print the task's pinned file (made again "
+                    "where missing, its digest checked) and exit")
+    args = ap.parse_args(argv)
+    if args.file:
+        try:
+            print(pinned_file(args.file, log=lambda m: print(m, file=sys.stderr)))
+        except (FileNotFoundError, ValueError) as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 1
+        return 0
+    root = Path(args.runs)
+    scores, missing = read_scores(root, "seeds0-2", DECISION_TASKS, CANDIDATES)
+    if missing:
+        print(f"{len(missing)} decision cells missing (no verdict): {', '.join(missing)}")
+        return 1
+    verdict = decide(scores)
+    out = dict(decision=verdict, scores={c: {t: list(v) for t, v in s.items()}
+                                         for c, s in scores.items()})
+    print(json.dumps(verdict, indent=1))
+    if verdict["winner"] is not None:
+        conf, missing = read_scores(root, "seeds3-5", CONFIRMATION_TASKS,
+                                    ("0", verdict["winner"]))
+        if missing:
+            print(f"confirmation: {len(missing)} cells missing: {', '.join(missing)}")
+        else:
+            out["confirmation"] = confirm(conf, verdict["winner"])
+            out["confirmation_scores"] = {c: {t: list(v) for t, v in s.items()}
+                                          for c, s in conf.items()}
+            print(json.dumps(out["confirmation"], indent=1))
+    Path(args.out).write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

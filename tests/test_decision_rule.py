@@ -1,0 +1,67 @@
+"""experiments/r2pac_decision/decide.py applies PROTOCOL.md's rule as written: checked here on
+made-up scores before any decision run exists."""
+import pytest
+from conftest import load_script
+
+decide = load_script("experiments/r2pac_decision/decide.py", "decide_rule")
+TASKS = decide.DECISION_TASKS
+
+
+def _scores(base, **cands):
+    """base: [(R, C)] per decision task; cands: id -> [(R, C)]."""
+    out = {"0": dict(zip(TASKS, base))}
+    for c in ("a", "b", "c"):
+        out[c] = dict(zip(TASKS, cands.get(c, base)))
+    return out
+
+
+BASE = [(0.10, 0.5)] * 7
+
+
+def test_five_of_seven_higher_and_no_flip_qualifies_four_does_not():
+    five = [(0.30, 0.5)] * 5 + [(0.05, 0.5)] * 2
+    four = [(0.30, 0.5)] * 4 + [(0.05, 0.5)] * 3
+    v = decide.decide(_scores(BASE, a=five, b=four))
+    assert v["candidates"]["a"]["qualifies"] and not v["candidates"]["b"]["qualifies"]
+    assert v["winner"] == "a"
+
+
+def test_a_safe_task_made_unsafe_disqualifies_whatever_the_reward():
+    big = [(0.9, 0.5)] * 6 + [(0.9, 1.2)]
+    v = decide.decide(_scores(BASE, c=big))
+    assert v["candidates"]["c"]["made_unsafe"] == [TASKS[-1]]
+    assert v["winner"] is None  # a and b equal the baseline: reward higher on no task
+
+
+def test_an_unsafe_task_staying_unsafe_is_no_flip():
+    base = [(0.10, 0.5)] * 6 + [(0.10, 1.5)]
+    v = decide.decide(_scores(base, b=[(0.2, 0.5)] * 6 + [(0.2, 2.0)]))
+    assert v["winner"] == "b" and v["candidates"]["b"]["made_unsafe"] == []
+
+
+def test_the_largest_median_gain_wins_and_ties_go_to_the_smaller_change():
+    a = [(0.20, 0.5)] * 7  # median gain 0.10
+    c = [(0.40, 0.5)] * 7  # median gain 0.30
+    assert decide.decide(_scores(BASE, a=a, c=c))["winner"] == "c"
+    assert decide.decide(_scores(BASE, a=c, c=c))["winner"] == "a"
+    assert decide.decide(_scores(BASE, b=c, c=c))["winner"] == "b"
+
+
+def test_confirmation_needs_half_and_no_flip():
+    tasks = decide.CONFIRMATION_TASKS
+    assert len(tasks) == 11
+    base = {t: (0.1, 0.5) for t in tasks}
+
+    def conf(rewards, costs=None):
+        costs = costs or [0.5] * 11
+        return decide.confirm({"0": base, "a": dict(zip(tasks, zip(rewards, costs)))}, "a")
+
+    assert conf([0.2] * 6 + [0.0] * 5)["confirmed"]
+    assert not conf([0.2] * 5 + [0.0] * 6)["confirmed"]
+    assert not conf([0.2] * 11, [0.5] * 10 + [1.0])["confirmed"]
+
+
+@pytest.mark.parametrize("left", [7, 6, 4])
+def test_a_task_left_out_scales_the_bar(left):
+    need = decide.qualifies(_scores(BASE), "a", TASKS[:left])[1]["needed"]
+    assert need == {7: 5, 6: 5, 4: 3}[left]
