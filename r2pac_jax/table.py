@@ -303,12 +303,30 @@ def write_outputs(out: Path, cells: dict, algos, families: dict, caption: str) -
     return md
 
 
+_TABLE_FILES = {"manifest.json", "table.md", "table.csv", "table.png", ".lock"}
+
+
 def is_legacy_table(path: Path) -> bool:
-    """A table directory written before directories were marked: its manifest reads back."""
+    """A table directory written before directories were marked: its manifest reads back, or
+    it holds nothing but a table's files and TASK/ALGO cells that are runs (a pipeline copies
+    finished runs in before the table command first writes its manifest)."""
+    from r2pac_jax.io import marker_kind
+    from r2pac_jax.loop import is_legacy_run
+
     try:
-        return "datasets" in json.loads((path / "manifest.json").read_text())
+        if "datasets" in json.loads((path / "manifest.json").read_text()):
+            return True
     except (OSError, ValueError, TypeError):
-        return False
+        pass
+    for entry in path.iterdir():
+        if entry.name in _TABLE_FILES:
+            continue
+        if not entry.is_dir():
+            return False
+        for cell in entry.iterdir():
+            if not cell.is_dir() or not (marker_kind(cell) == "run" or is_legacy_run(cell)):
+                return False
+    return True
 
 
 def main(argv=None) -> int:

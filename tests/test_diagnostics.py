@@ -38,44 +38,31 @@ def test_candidate_stats_by_hand():
     np.testing.assert_allclose(s["not_first"], [1.0, 0.0])
 
 
-@pytest.fixture(scope="module")
-def one_step_blocks(reach_avoid_data):
-    """r2pac's metrics of 3 critic and 3 actor blocks of one step each (one compile per phase):
-    [(phase, {name: value})]."""
-    from r2pac_jax.lanes import Lanes
-    from r2pac_jax.loop import compiled, make_data
-
-    cfg = tiny_config(threshold_every=1, steps=10)
-    data = make_data(cfg, TASK, reach_avoid_data)
-    _, init, blocks, _ = compiled(cfg, TASK.obs_dim, TASK.act_dim)
-    ln = Lanes.build(cfg, [0])
-    state = init(ln.init_keys(), ln.hp)
-    out = []
-    for phase in ("critic",) * 3 + ("actor",) * 3:
-        state, m, _ = blocks[phase](state, ln.hp, data)
-        out.append((phase, {k: float(v[0]) for k, v in m.items()}))
-    return out
-
-
-def test_training_logs_the_fit_the_labels_and_the_advantage_reward_correlation(one_step_blocks):
-    c = one_step_blocks[0][1]
-    a = one_step_blocks[-1][1]
-    for k in ("qr_rmse_penalised", "qr_rmse_unpenalised", "chunk_reward_std", "vc_min"):
-        assert np.isfinite(c[k]), k
-    assert c["qr_rmse_penalised"] > 0 and c["chunk_reward_std"] > 0
-    for k in ("label_balance_safe", "label_balance_unsafe"):
-        assert 0.0 <= a[k] <= 1.0
-    assert -1.0 <= a["corr_adv_r_reward_safe"] <= 1.0
-
-
-def test_label_balance_splits_into_its_safe_and_unsafe_parts(one_step_blocks):
+def test_label_balance_splits_into_its_safe_and_unsafe_parts():
     """label_balance = safe share x balance in safe states + unsafe share x in unsafe ones."""
-    for phase, m in one_step_blocks:
-        if phase != "actor":
-            continue
-        safe = m["actor_safe_frac"]
-        whole = safe * m["label_balance_safe"] + (1 - safe) * m["label_balance_unsafe"]
-        assert whole == pytest.approx(m["label_balance"], abs=1e-5)
+    o = jnp.array([1, 0, 1, 1, 0, 0, 1], jnp.float32)
+    safe = jnp.array([True, True, False, True, False, False, True])
+    share = float(safe.mean())
+    whole = share * float(dg.masked_mean(o, safe)) + (1 - share) * float(
+        dg.masked_mean(o, ~safe))
+    assert whole == pytest.approx(float(o.mean()))
+
+
+def test_training_logs_the_fit_the_labels_and_the_advantage_reward_correlation(tiny_run):
+    """metrics.jsonl of the session's tiny r2pac run (block means of each step's values)."""
+    rows = [json.loads(x) for x in (tiny_run["run"] / "metrics.jsonl").read_text().splitlines()]
+    critic = [r for r in rows if r["phase"] == "critic"]
+    actor = [r for r in rows if r["phase"] == "actor"]
+    assert critic and actor
+    for r in critic:
+        for k in ("qr_rmse_penalised", "qr_rmse_unpenalised", "chunk_reward_std", "vc_min"):
+            assert np.isfinite(r[k]), k
+        assert r["qr_rmse_penalised"] > 0 and r["chunk_reward_std"] > 0
+    for r in actor:
+        for k in ("label_balance_safe", "label_balance_unsafe"):
+            assert 0.0 <= r[k] <= 1.0
+        assert -1.0 <= r["corr_adv_r_reward_safe"] <= 1.0
+        assert "qr_rmse_penalised" not in r  # the critics are not trained in this phase
 
 
 def test_without_the_penalty_both_fits_are_the_same_number(reach_avoid_data):
@@ -104,7 +91,7 @@ def _policy_state(algo="r2pac", **kw):
         cfg, TASK.obs_dim, TASK.act_dim)(state, ln.hp)
 
 
-def test_act_info_acts_bit_for_bit_as_act_under_every_rule():
+def test_act_info_acts_bit_for_bit_as_act_under_every_rule(tiny_run):
     """Eagerly (no compile per rule): the same action, and the statistics each rule has."""
     from r2pac_jax.agents import make_agent
 
@@ -128,7 +115,7 @@ def test_act_info_acts_bit_for_bit_as_act_under_every_rule():
             assert agent.diagnostics_note() is None
 
 
-def test_diagnostics_change_no_score_and_python_stepping_reports_the_same():
+def test_diagnostics_change_no_score_and_python_stepping_reports_the_same(tiny_run):
     """Evaluation with diagnostics scores every episode as without them (bit for bit), and the
     C-MuJoCo path (a Python loop over steps) accumulates them as the JAX rollout does."""
     from test_evaluate import _ViaPython
@@ -136,11 +123,14 @@ def test_diagnostics_change_no_score_and_python_stepping_reports_the_same():
     from r2pac_jax.envs import reach_avoid as ra
     from r2pac_jax.evaluate import LaneEvaluator, policy_of
 
-    _, agent, pp, dp = _policy_state()
+    from r2pac_jax.loop import lane_evaluator
+
+    cfg, agent, pp, dp = _policy_state()
     keys = jnp.stack([jax.random.PRNGKey(7), jax.random.PRNGKey(8)])
     env = ra.ReachAvoidEnv()
-    plain = LaneEvaluator(policy_of(agent), TASK, 3, env=env)(pp, keys)
-    diag = LaneEvaluator(policy_of(agent, diagnostics=True), TASK, 3, env=env)(dp, keys)
+    # the run's own evaluators (compiled by the session's tiny run in this process)
+    plain = lane_evaluator(cfg, TASK, 2, "auto", False)(pp, keys)
+    diag = lane_evaluator(cfg, TASK, 2, "auto", True)(dp, keys)
     for k in ("returns", "costs", "lengths", "terminals"):
         np.testing.assert_array_equal(plain[k], diag[k])
     assert plain["diagnostics"] == {}
@@ -150,7 +140,7 @@ def test_diagnostics_change_no_score_and_python_stepping_reports_the_same():
     assert (d["qc_spread"] >= 0).all() and (d["qr_given_up"] >= 0).all()
     assert (d["qr_given_up"] <= d["qr_spread"] + 1e-6).all()
     assert ((0 <= d["not_first"]) & (d["not_first"] <= 1)).all()
-    py = LaneEvaluator(policy_of(agent, True), TASK, 3, env=_ViaPython(env))(dp, keys)
+    py = LaneEvaluator(policy_of(agent, True), TASK, 2, env=_ViaPython(env))(dp, keys)
     np.testing.assert_array_equal(diag["lengths"], py["lengths"])
     np.testing.assert_array_equal(diag["terminals"], py["terminals"])
     for k in d:

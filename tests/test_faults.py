@@ -288,3 +288,21 @@ def test_ctrl_c_prints_one_line_and_the_command_that_resumes(finished, data_dir,
     rows = [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines()]
     assert sorted(r["step"] for r in rows if r["lane"] == 0) == list(range(10, 3001, 10))
     assert json.loads((out / "results.json").read_text())["resumed_from_step"] == saved
+
+
+def test_a_table_directory_a_pipeline_filled_with_runs_is_still_a_table(finished, tmp_path):
+    """task_pipeline.sh copies finished runs into TABLE_OUT/TASK/ALGO before the table command
+    first writes there; a folder with anything else in a task directory is not a table."""
+    from r2pac_jax.io import ForeignDirectory, claim_directory
+    from r2pac_jax.table import is_legacy_table
+
+    table = tmp_path / "table1"
+    (table / "ReachAvoid").mkdir(parents=True)
+    shutil.copytree(finished["run"], table / "ReachAvoid" / "r2pac")
+    assert is_legacy_table(table)
+    (table / "ReachAvoid" / "notes.txt").write_text("mine\n")
+    with pytest.raises(ForeignDirectory):
+        claim_directory(table, "table", legacy=is_legacy_table)
+    (table / "ReachAvoid" / "notes.txt").unlink()
+    claim_directory(table, "table", legacy=is_legacy_table)
+    assert json.loads((table / MARKER).read_text())["kind"] == "table"
