@@ -13,6 +13,15 @@ atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
 os.environ["R2PAC_DATA_DIR"] = os.path.join(_CACHE, "gen")
 os.environ["DSRL_DATASET_DIR"] = os.path.join(_CACHE, "dsrl")
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+# One XLA compilation cache per test run, shared by the xdist workers and the subprocesses the
+# tests start (they inherit the environment): the same tiny programs compile once per run, not
+# once per process. The first process to import this makes it (and removes it at exit); a run
+# starts cold, so the suite's time is a fresh machine's.
+if "R2PAC_TEST_XLA_CACHE" not in os.environ:
+    os.environ["R2PAC_TEST_XLA_CACHE"] = tempfile.mkdtemp(prefix="r2pac-test-xla-")
+    atexit.register(shutil.rmtree, os.environ["R2PAC_TEST_XLA_CACHE"], ignore_errors=True)
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.environ["R2PAC_TEST_XLA_CACHE"])
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402

@@ -15,8 +15,6 @@ import pytest
 from conftest import TINY_ARGV
 
 TINY = TINY_ARGV
-# every test on the session's tiny run shares one worker, which builds the run once
-pytestmark = pytest.mark.xdist_group("tiny_run")
 
 T = "--task ReachAvoid".split()
 CASES = [

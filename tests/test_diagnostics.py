@@ -14,8 +14,6 @@ from r2pac_jax.agents import diagnostics as dg
 from r2pac_jax.tasks import get_task
 
 TASK = get_task("ReachAvoid")
-# every test on the session's tiny run shares one worker, which builds the run once
-pytestmark = pytest.mark.xdist_group("tiny_run")
 
 
 def test_masked_statistics_by_hand():

@@ -19,8 +19,6 @@ from conftest import TINY_ARGV
 
 from r2pac_jax.io import MARKER
 
-# every test on the session's tiny run shares one worker, which builds the run once
-pytestmark = pytest.mark.xdist_group("tiny_run")
 T = ["--task", "ReachAvoid"]
 TINY = TINY_ARGV + ["--baselines", "none"]
 
