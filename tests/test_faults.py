@@ -204,7 +204,7 @@ def test_check_fits_refuses_with_the_numbers_and_warns_when_close():
     assert "1000 lanes need about 10.0 GiB" in msg and "8.0 GiB available (test)" in msg
     assert "about 800 lanes fit" in msg and "nothing was allocated" in msg
     said = []
-    check_fits(need, "x", "y", log=said.append, have=(11 * 2**30, "test"))
+    check_fits(need, "x", "y", log=said.append, have=(15 * 2**30, "test"))
     assert len(said) == 1 and said[0].startswith("warning:") and "close to the limit" in said[0]
     said.clear()
     check_fits(need, "x", "y", log=said.append, have=(64 * 2**30, "test"))
