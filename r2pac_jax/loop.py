@@ -329,13 +329,17 @@ class Run:
             # settings are compared whether or not checkpoints remain: a run whose checkpoints
             # are gone must not restart silently under other settings
             self._check_same_run()
+        if not resume and (self.out / "checkpoints").is_dir():
+            held = Checkpointer(self.out / "checkpoints")
+            latest = held.latest_step()
+            held.close()
+            if latest is not None:
+                raise ConfigError(f"{self.out} already holds a run (checkpoint at step "
+                                  f"{latest}); pass --resume to continue it or choose another "
+                                  "--out")
+        self.check_memory()  # before anything of the run is allocated or created
         self.out.mkdir(parents=True, exist_ok=True)
         ckpt = Checkpointer(self.out / "checkpoints")
-        if not resume and ckpt.latest_step() is not None:
-            raise ConfigError(f"{self.out} already holds a run (checkpoint at step "
-                              f"{ckpt.latest_step()}); pass --resume to continue it or choose "
-                              "another --out")
-        self.check_memory()  # before anything of the run is allocated
         state = self.init_state()
         done_blocks = 0
         # The logs keep rows up to the step training starts from: 0 unless a checkpoint is

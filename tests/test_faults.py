@@ -226,7 +226,7 @@ def test_too_many_lanes_are_refused_before_anything_is_allocated(finished, capsy
     assert rc == 2 and len(lines) == 1, err
     assert re.search(r"ReachAvoid bc-all-mlp: 5000 lanes need about [\d.]+ (MiB|GiB)", lines[0])
     assert "8 MiB available (a test's 8 MiB)" in lines[0] and "lanes fit" in lines[0]
-    assert not (out / "checkpoints").exists() or not any((out / "checkpoints").iterdir())
+    assert not (out / "checkpoints").exists()  # nothing of the run was created
 
 
 def test_available_memory_is_read_off_this_machine():
