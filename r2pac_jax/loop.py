@@ -204,6 +204,8 @@ class Run:
         self.progress = progress
         self.log = log
         self.dataset_label = dataset_label or ds.source
+        self.dataset_path = next((Path(p) for p in (dataset_label, ds.source)
+                                  if p and Path(p).is_file()), None)
         self.agent, self._init, self._blocks, self._policy_params = compiled(
             cfg, task.obs_dim, task.act_dim)
         self.agent.check_data(task, ds)
@@ -489,6 +491,14 @@ class Run:
         if self.evaluator is not None:  # the simulator that scored it (bullet and MJX scores
             # of a Bullet task, say, are not interchangeable)
             out["eval_backend"] = getattr(self.evaluator.env, "backend", "jax")
+        # what the cell stands on: the device that trained it and its file's RL budget (a
+        # table names rows trained elsewhere or on a cut budget)
+        from r2pac_jax.data.factory import data_budget
+        from r2pac_jax.machine import describe, training_device
+
+        out["trained_on"] = training_device()
+        out["machine"] = describe()
+        out["data_budget"] = data_budget(self.dataset_path) if self.dataset_path else None
         return out
 
     def plot(self, logs) -> None:

@@ -22,6 +22,15 @@ def describe() -> dict:
     return dict(cpu=cpu, cpus=cpus, arch=platform.machine())
 
 
+def training_device() -> dict:
+    """{backend: "cpu" | "gpu" | "tpu", device_kind: e.g. "NVIDIA H100 80GB HBM3" or "cpu",
+    devices: how many}: what trained a run (a table names rows trained on another kind)."""
+    import jax
+
+    d = jax.devices()
+    return dict(backend=jax.default_backend(), device_kind=d[0].device_kind, devices=len(d))
+
+
 def record() -> dict:
     """describe() plus what a timing also hangs on: {cpu, cpus, arch, jax, backend, device,
     date ("YYYY-MM-DD HH:MM"), load_avg (1-minute load when measured; None off Unix)}."""

@@ -30,6 +30,7 @@ import json
 import re
 import sys
 from pathlib import Path
+from typing import Optional
 
 
 DEFAULT_ALGOS = "bc-all-mlp,cpq,coptidice,bcq-lag,r2pac"
@@ -442,9 +443,62 @@ def _write_table(out: Path, cells: dict, manifest: dict, algos, args, log) -> No
                       if t in cells)
     caption = (f"Preset {args.preset}, {args.seeds} seeds, {args.episodes} evaluation episodes per "
                f"seed, final policies; data {', '.join(versions)} ({files}).")
+    standing = standing_lines(cells, manifest)
+    if standing:
+        caption += "\n\n" + "\n".join(standing)
     md = write_outputs(out, cells, algos, families, caption)
     log("\n" + md)
     log(f"\n{out / 'table.md'}, {out / 'table.csv'}, {out / 'table.png'}")
+
+
+_BUDGET_IN_NAME = re.compile(r"-b(\d+)\.hdf5$")
+
+
+def row_budget(task_name: str, file: str, row: dict) -> Optional[dict]:
+    """{env_steps, dsrl_env_steps} of the file a row stands on: from its cells' results.json
+    (`data_budget`, recorded since 2026-12-06), else from the file's name (a learned file at a
+    budget other than DSRL's carries `-b<env steps>`); None where neither says (no recipe)."""
+    from r2pac_jax.tasks import get_task
+
+    for r in row.values():
+        b = r.get("data_budget")
+        if b and b.get("dsrl_env_steps"):
+            return dict(env_steps=b["env_steps"], dsrl_env_steps=b["dsrl_env_steps"])
+    coll = get_task(task_name).collection
+    if coll is None or "-generated-ppolag-" not in file:
+        return None
+    m = _BUDGET_IN_NAME.search(file)
+    return dict(env_steps=int(m.group(1)) if m else coll.env_steps,
+                dsrl_env_steps=coll.env_steps)
+
+
+def standing_lines(cells: dict, manifest: dict) -> list:
+    """The footer that says what the rows stand on: rows on files made below DSRL's RL budget
+    (env steps and share), cells trained on another kind of device than the table's CPU, and
+    how many cells predate the device record."""
+    cut, other, unrecorded = [], [], 0
+    for t, row in cells.items():
+        d = manifest["datasets"].get(t, {})
+        b = row_budget(t, d.get("file", ""), row)
+        if b and b["env_steps"] < b["dsrl_env_steps"]:
+            cut.append(f"{t} {b['env_steps'] / 1e6:g}M of {b['dsrl_env_steps'] / 1e6:g}M "
+                       f"({100 * b['env_steps'] / b['dsrl_env_steps']:.0f}%)")
+        for a, r in row.items():
+            dev = r.get("trained_on")
+            if dev is None:
+                unrecorded += 1
+            elif dev.get("backend") != "cpu":
+                other.append(f"{t} {a} ({dev.get('device_kind', dev.get('backend'))})")
+    out = []
+    if cut:
+        out.append(f"Rows on files made below DSRL's RL budget ({len(cut)} of {len(cells)}): "
+                   + ", ".join(cut) + ".")
+    if other:
+        out.append("Cells trained on another device than a CPU: " + ", ".join(other) + ".")
+    if unrecorded:
+        out.append(f"{unrecorded} cells predate the device record in results.json (2026-12-06); "
+                   "the log (RESULTS.md) names where they ran.")
+    return out
 
 
 def _table_only(out: Path, tasks: list, algos, args, log) -> int:

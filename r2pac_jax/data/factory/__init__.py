@@ -155,6 +155,26 @@ def card_path(path: Path) -> Path:
     return path.with_suffix(".json")
 
 
+def data_budget(path) -> Optional[dict]:
+    """What a generated file stands on, read from its card: {source, env_steps (the RL budget
+    that made it), dsrl_env_steps, dsrl_budget (True when at DSRL's), physics}; None for a file
+    without a card (a user's or DSRL's own file) or a source with no RL budget."""
+    import json
+
+    try:
+        card = json.loads(card_path(Path(path)).read_text())
+    except (OSError, ValueError):
+        return None
+    gen = card.get("generation") or {}
+    if "env_steps" not in gen:
+        return None
+    dsrl = card.get("dsrl_env_steps")
+    return dict(source=card.get("source"), env_steps=int(gen["env_steps"]),
+                dsrl_env_steps=None if dsrl is None else int(dsrl),
+                dsrl_budget=None if dsrl is None else int(gen["env_steps"]) >= int(dsrl),
+                physics=card.get("physics"))
+
+
 def find_cached(task: TaskSpec) -> Optional[Path]:
     """A complete generated dataset (file and card) for the task, default size/seed first."""
     d = cache_dir()

@@ -354,9 +354,15 @@ class Generation:
                                cost_limit=limit, multiplier=state["lam"],
                                episode_return=state["last_return"],
                                episode_cost=state["last_cost"], finished=len(finished),
+                               finished_within_last_limit=sum(
+                                   f[1] <= s.schedule.end for f in finished),
                                pooled=len(state["pool"]),
                                policy_loss=float(m["policy_loss"]),
                                value_loss=float(m["value_loss"]),
+                               # the policy's noise: a task whose cost the noise alone makes
+                               # (Swimmer) needs it to fall before the limit can be met
+                               log_std=float(np.mean(np.asarray(
+                                   params["actor"]["params"]["log_std"]))),
                                steps_per_s=s.steps_per_update / (time.time() - t0))
                     logf.write(json.dumps(row) + "\n")
                     logf.flush()
