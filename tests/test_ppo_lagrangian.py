@@ -307,3 +307,26 @@ def test_a_fresh_machine_makes_learned_data_with_its_eta(tmp_path, monkeypatch, 
     assert checks_path(ds.source).exists() and "coverage checks" in said[-1]
     said.clear()
     assert load_task_dataset(task, announce=said.append).source == ds.source  # found next time
+
+
+def test_budget_too_small_for_the_last_limit_warns_before_starting(tmp_path):
+    from r2pac_jax.data.factory import collect
+    from r2pac_jax.tasks import get_task
+
+    t = get_task("ReachAvoid")
+    assert collect.schedule_warning(t, collect.make_spec(t)) is None  # DSRL-style budget
+    lines = []
+    out = collect.generate_learned(t, tmp_path / "ra.hdf5", env_steps=50_000, stop_after=0,
+                                   log=lines.append, progress=False)
+    assert out is None  # stopped before the first update: nothing made
+    warn = [ln for ln in lines if ln.startswith("warning: ")]
+    assert len(warn) == 1 and "leaves 1,080 steps under it" in warn[0] and "--budget" in warn[0]
+
+
+def test_unknown_recipe_value_names_the_key():
+    from r2pac_jax.data.dsrl import DatasetError
+    from r2pac_jax.data.factory import collect
+    from r2pac_jax.tasks import get_task
+
+    with pytest.raises(DatasetError, match=r"no recipe value 'lr_actor'; known: clip, "):
+        collect.make_spec(get_task("CarGoal1"), ppo={"lr_actor": 1e-4})

@@ -134,6 +134,11 @@ def make_spec(task: TaskSpec, trajectories: Optional[int] = None, env_steps: Opt
     sched = pl.CostSchedule(float(c.cost_start), float(c.cost_end),
                             int(round(c.epoch_start * c.steps_per_epoch * frac)),
                             max(1, int(round(c.epoch_end * c.steps_per_epoch * frac))))
+    known = {f.name for f in dataclasses.fields(pl.PPOLagConfig)}
+    for k in {**dict(c.ppo), **(ppo or {})}:
+        if k not in known:
+            raise DatasetError(f"{task.name}: the generator has no recipe value {k!r}; known: "
+                               f"{', '.join(sorted(known))}")
     cfg = pl.PPOLagConfig(**{**dict(c.ppo), **(ppo or {})})
     cfg.validate()
     if physics == "auto":
@@ -465,6 +470,26 @@ def check_disk(task: TaskSpec, spec: GenSpec, where: Path) -> None:
                            f"{mem / 2**30:.1f} GiB; free memory or pass a smaller --trajectories")
 
 
+def schedule_warning(task: TaskSpec, spec: GenSpec) -> Optional[str]:
+    """A line when the budget leaves no whole episode under the schedule's last limit (each
+    environment needs episode_len steps, i.e. episode_len / rollout_len updates, after the limit
+    arrives): the learner cannot be judged against that limit and the file holds few episodes
+    made under it. None when the budget allows one."""
+    per_update = spec.steps_per_update
+    total = spec.updates * per_update
+    after = total - spec.schedule.end_step
+    need = task.episode_len * spec.ppo.num_envs  # one whole episode per environment
+    if after >= need:
+        return None
+    c = task.collection
+    return (f"{task.name}: a budget of {spec.env_steps:,} env steps reaches the last cost limit "
+            f"{spec.schedule.end:g} at step {spec.schedule.end_step:,} and leaves "
+            f"{max(after, 0):,} steps under it, fewer than one {task.episode_len}-step episode "
+            f"per environment ({need:,}); DSRL's budget of {c.env_steps:,} leaves "
+            f"{(c.epochs - c.epoch_end) * c.steps_per_epoch:,}. Episodes under the last limit "
+            f"will be few or none: give a larger --budget")
+
+
 def generate_learned(task: TaskSpec, path: Path, trajectories: Optional[int] = None,
                      env_steps: Optional[int] = None, seed: int = 0, physics: str = "auto",
                      ppo: Optional[dict] = None, checkpoint_every: int = 10,
@@ -481,6 +506,9 @@ def generate_learned(task: TaskSpec, path: Path, trajectories: Optional[int] = N
     from r2pac_jax.report import plot_composition
 
     spec = make_spec(task, trajectories, env_steps, seed, physics, ppo, checkpoint_every)
+    warning = schedule_warning(task, spec)
+    if warning:
+        log(f"warning: {warning}")
     partial = Path(f"{path}.partial")
     check_disk(task, spec, path.parent)
     gen = Generation(task, spec, partial, log=log, progress=progress)
