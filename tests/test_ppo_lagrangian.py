@@ -330,3 +330,32 @@ def test_unknown_recipe_value_names_the_key():
 
     with pytest.raises(DatasetError, match=r"no recipe value 'lr_actor'; known: clip, "):
         collect.make_spec(get_task("CarGoal1"), ppo={"lr_actor": 1e-4})
+
+
+def test_mean_squash_recipe_value():
+    """The unsquashed mean (a per-task recipe value) reaches past the action bounds where the
+    tanh saturates; the default stays DSRL's and is left out of spec.json and the card, so
+    every earlier generation resumes and every pinned card reads the same."""
+    import jax
+    import jax.numpy as jnp
+
+    from r2pac_jax.data.dsrl import DatasetError
+    from r2pac_jax.data.factory import collect
+    from r2pac_jax.data.factory import ppo_lagrangian as pl
+    from r2pac_jax.tasks import get_task
+
+    t = get_task("SwimmerVelocity")
+    assert "mean_squash" not in collect.make_spec(t).to_dict()["ppo"]
+    assert collect.make_spec(t, ppo={"mean_squash": "none"}).to_dict()["ppo"]["mean_squash"] == "none"
+    with pytest.raises(DatasetError, match="mean_squash must be one of tanh, none"):
+        collect.make_spec(t, ppo={"mean_squash": "softsign"})
+    obs = 50.0 * jnp.ones((4, t.obs_dim))
+    for squash, beyond in (("tanh", False), ("none", True)):
+        actor = pl.Actor(t.act_dim, (8,), -0.5, squash)
+        params = actor.init(jax.random.PRNGKey(0), obs[0])
+        # a saturating policy: every bias at 3 (the output's pre-activation about 3)
+        params = jax.tree_util.tree_map_with_path(
+            lambda path, x: jnp.full_like(x, 3.0) if "bias" in jax.tree_util.keystr(path) else x,
+            params)
+        mean, _ = actor.apply(params, obs)
+        assert bool((jnp.abs(mean) > 1.0).any()) == beyond

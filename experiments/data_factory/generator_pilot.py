@@ -26,7 +26,10 @@ def parse_ppo(items):
         if "=" not in it:
             sys.exit(f"--ppo takes KEY=VALUE, got {it!r}")
         k, v = it.split("=", 1)
-        out[k] = json.loads(v)
+        try:
+            out[k] = json.loads(v)
+        except ValueError:  # a bare word: a string value
+            out[k] = v
     return out
 
 

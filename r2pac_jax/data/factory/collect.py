@@ -113,7 +113,8 @@ class GenSpec:
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
-        d["ppo"] = {k: list(v) if isinstance(v, tuple) else v for k, v in d["ppo"].items()}
+        d["ppo"] = {k: list(v) if isinstance(v, tuple) else v for k, v in d["ppo"].items()
+                    if pl.LATER_DEFAULTS.get(k, object()) != v}
         return json.loads(json.dumps(d))  # the form spec.json holds (lists, not tuples)
 
 

@@ -32,6 +32,12 @@ import optax
 from r2pac_jax.envs.base import put_rows
 
 
+MEAN_SQUASH = ("tanh", "none")
+# values added after files were pinned: left out of spec.json and the card at their default, so
+# a generation started before them resumes and every earlier card reads the same
+LATER_DEFAULTS = {"mean_squash": "tanh"}
+
+
 @dataclasses.dataclass(frozen=True)
 class PPOLagConfig:
     # 10k env steps per update as DSRL's epoch; 100 envs x 100 steps rather than DSRL's 10
@@ -48,6 +54,10 @@ class PPOLagConfig:
     hidden: Sequence[int] = (128, 128)  # DSRL's
     init_log_std: float = -0.5  # DSRL's sigma init
     pid: Sequence[float] = (0.05, 0.005, 0.1)  # DSRL's KP, KI, KD
+    # "tanh": DSRL's tanh-squashed Gaussian mean; "none": an unsquashed mean (actions are
+    # clipped either way). A per-task recipe value: first-order PPO cannot leave a saturated
+    # tanh where TRPO's natural gradient does (SwimmerVelocity, GENERATION.md)
+    mean_squash: str = "tanh"
 
     def validate(self) -> None:
         from r2pac_jax.data.dsrl import DatasetError
@@ -62,6 +72,9 @@ class PPOLagConfig:
         if not self.lr > 0 or not 0 < self.gamma < 1 or not 0 <= self.gae_lambda <= 1:
             raise DatasetError("PPO-Lagrangian: lr must be > 0, gamma in (0, 1), gae_lambda in "
                                "[0, 1]")
+        if self.mean_squash not in MEAN_SQUASH:
+            raise DatasetError(f"PPO-Lagrangian: mean_squash must be one of "
+                               f"{', '.join(MEAN_SQUASH)}, got {self.mean_squash!r}")
         if len(self.pid) != 3 or min(self.pid) < 0:
             raise DatasetError(f"PPO-Lagrangian: pid must be three gains >= 0, got {self.pid}")
 
@@ -78,14 +91,17 @@ class _MLP(nn.Module):
 
 
 class Actor(nn.Module):
-    """obs [..., O] -> (mean [..., A] in (-1, 1), log_std [A])."""
+    """obs [..., O] -> (mean [..., A], in (-1, 1) when squashed, log_std [A])."""
     act_dim: int
     hidden: Sequence[int]
     init_log_std: float
+    squash: str = "tanh"
 
     @nn.compact
     def __call__(self, obs):
-        mean = jnp.tanh(_MLP(self.hidden, self.act_dim)(obs))
+        mean = _MLP(self.hidden, self.act_dim)(obs)
+        if self.squash == "tanh":
+            mean = jnp.tanh(mean)
         log_std = self.param("log_std", nn.initializers.constant(self.init_log_std),
                              (self.act_dim,))
         return mean, log_std
@@ -161,7 +177,7 @@ class CostSchedule:
 
 
 def networks(obs_dim: int, act_dim: int, cfg: PPOLagConfig):
-    actor = Actor(act_dim, tuple(cfg.hidden), cfg.init_log_std)
+    actor = Actor(act_dim, tuple(cfg.hidden), cfg.init_log_std, cfg.mean_squash)
     critics = Critics(tuple(cfg.hidden))
     opt = optax.chain(optax.clip_by_global_norm(0.5), optax.adam(cfg.lr))
     return actor, critics, opt
