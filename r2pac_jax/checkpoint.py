@@ -11,6 +11,7 @@ from typing import Any, Optional
 import jax
 
 from r2pac_jax.config import ConfigError
+from r2pac_jax.errors import R2pacError
 
 
 class CheckpointUnreadable(ConfigError):
@@ -68,7 +69,7 @@ def check_digest(step_dir: Path) -> None:
                                 f"(sha256 differs: {', '.join(bad[:2])})")
 
 
-class CheckpointDamaged(ValueError):
+class CheckpointDamaged(R2pacError, ValueError):
     """A checkpoint's files differ from the checksums recorded when it was written."""
 
 

@@ -15,10 +15,11 @@ import dataclasses
 import json
 from typing import Any, Optional
 
+from r2pac_jax.errors import R2pacError
 from r2pac_jax.tasks import TaskSpec, get_task
 
 
-class ConfigError(ValueError):
+class ConfigError(R2pacError, ValueError):
     pass
 
 

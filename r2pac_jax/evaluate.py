@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from r2pac_jax.envs.base import pow2_bucket, put_rows, take_rows
+from r2pac_jax.errors import R2pacError
 from r2pac_jax.tasks import TaskSpec, get_task
 
 
@@ -349,7 +350,6 @@ def main(argv=None) -> int:
     import sys
 
     from r2pac_jax.config import ConfigError
-    from r2pac_jax.tasks import EnvUnavailableError, UnknownTaskError
 
     try:
         if args.episodes < 1:
@@ -360,7 +360,7 @@ def main(argv=None) -> int:
         results = {r: evaluate_run(args.run_dir, args.episodes, r, args.guidance,
                                    args.candidates, args.physics)
                    for r in (rules or (args.selection,))}
-    except (ConfigError, FileNotFoundError, UnknownTaskError, EnvUnavailableError) as e:
+    except (R2pacError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     for rule, out in results.items():

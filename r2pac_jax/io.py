@@ -9,8 +9,10 @@ import tempfile
 from pathlib import Path
 from typing import Optional
 
+from r2pac_jax.errors import R2pacError
 
-class WriteError(OSError):
+
+class WriteError(R2pacError, OSError):
     """The project could not write one of its files (disk full, no permission, a file where a
     directory should be, a file-size limit); the message names the path and the fix."""
 
@@ -132,7 +134,7 @@ def _default(o):
     raise TypeError(f"not JSON serialisable: {type(o)}")
 
 
-class DirectoryBusy(RuntimeError):
+class DirectoryBusy(R2pacError, RuntimeError):
     """Another live process is writing the same run directory."""
 
 

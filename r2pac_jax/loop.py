@@ -22,12 +22,13 @@ import numpy as np
 from r2pac_jax.agents import make_agent
 from r2pac_jax.config import Config, ConfigError, default_hparams
 from r2pac_jax.data.dsrl import Dataset
+from r2pac_jax.errors import R2pacError
 from r2pac_jax.io import atomic_write_json, claim_directory, lock_directory, sigint_deferred
 from r2pac_jax.lanes import Lanes, place
 from r2pac_jax.tasks import TaskSpec
 
 
-class TrainingDiverged(RuntimeError):
+class TrainingDiverged(R2pacError, RuntimeError):
     """A block produced non-finite metrics; the last finite checkpoint is kept."""
 
 

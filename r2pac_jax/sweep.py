@@ -30,8 +30,8 @@ from typing import Any, Optional
 from r2pac_jax.agents import algo_module
 from r2pac_jax.config import (ConfigError, field_types, make_config, refuse_user_key,
                               resolve_preset)
-from r2pac_jax.io import (DirectoryBusy, WriteError, atomic_write_json, atomic_write_text,
-                          claim_directory)
+from r2pac_jax.errors import R2pacError
+from r2pac_jax.io import atomic_write_json, atomic_write_text, claim_directory
 
 TOP_KEYS = {"name", "description", "task", "tasks", "algo", "algos", "preset", "seeds",
             "eval_episodes", "physics", "dataset", "config", "grid"}
@@ -42,7 +42,7 @@ def vmapped(algo: str) -> set[str]:
     return set(algo_module(algo).HPARAMS)
 
 
-class SweepError(ValueError):
+class SweepError(R2pacError, ValueError):
     pass
 
 
@@ -466,9 +466,6 @@ def plot_sweep(rows: list[dict], axes: list[str], out: Path) -> None:
 
 
 def main(argv=None) -> int:
-    from r2pac_jax.data.chunks import ChunkError
-    from r2pac_jax.data.dsrl import DatasetError
-    from r2pac_jax.loop import TrainingDiverged
 
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
@@ -502,8 +499,7 @@ def main(argv=None) -> int:
                         progress=not args.no_progress)
         print((out / "table.md").read_text() if (out / "table.md").exists() else "")
         return 0
-    except (SweepError, ConfigError, DirectoryBusy, WriteError, DatasetError, ChunkError,
-            TrainingDiverged) as e:
+    except R2pacError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # finished cells are kept; a group resumes from its checkpoint

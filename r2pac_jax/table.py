@@ -32,6 +32,8 @@ import sys
 from pathlib import Path
 from typing import Optional
 
+from r2pac_jax.errors import R2pacError
+
 
 DEFAULT_ALGOS = "bc-all-mlp,cpq,coptidice,bcq-lag,r2pac"
 # Column order of a table whose columns are found, not named: the paper's Table 1 (baselines,
@@ -339,12 +341,11 @@ def main(argv=None) -> int:
 
     from r2pac_jax.agents import algo_module
     from r2pac_jax.config import ConfigError, resolve_preset
-    from r2pac_jax.data import DatasetError, load_task_dataset
-    from r2pac_jax.data.chunks import ChunkError
-    from r2pac_jax.io import DirectoryBusy, WriteError, claim_directory
+    from r2pac_jax.data import load_task_dataset
+    from r2pac_jax.io import claim_directory
     from r2pac_jax.lanes import Lanes
-    from r2pac_jax.loop import Run, TrainingDiverged, check_run
-    from r2pac_jax.tasks import EnvUnavailableError, UnknownTaskError, get_task
+    from r2pac_jax.loop import Run, check_run
+    from r2pac_jax.tasks import get_task
 
     run = out = None  # what a Ctrl-C reports
     try:
@@ -417,8 +418,7 @@ def main(argv=None) -> int:
                     log("   finished earlier: read back")
                     continue
                 cells[t.name][a] = run.run(resume=(d / "checkpoints").exists())
-    except (ConfigError, DatasetError, ChunkError, UnknownTaskError, EnvUnavailableError,
-            DirectoryBusy, TrainingDiverged, WriteError) as e:
+    except R2pacError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # finished cells are kept; the same command continues the rest

@@ -11,13 +11,15 @@ import dataclasses
 import importlib
 from typing import Any, Callable, Optional
 
+from r2pac_jax.errors import R2pacError
 
-class UnknownTaskError(KeyError):
+
+class UnknownTaskError(R2pacError, KeyError):
     def __str__(self) -> str:  # KeyError quotes its message; we want it plain
         return str(self.args[0])
 
 
-class EnvUnavailableError(RuntimeError):
+class EnvUnavailableError(R2pacError, RuntimeError):
     """The task is registered (constants, data) but has no environment on this install."""
 
 

@@ -17,7 +17,8 @@ from typing import Sequence
 from r2pac_jax.agents import algo_module, algo_names
 from r2pac_jax.config import (PRESETS, Config, ConfigError, field_types, make_config,
                               refuse_user_key, resolve_preset)
-from r2pac_jax.io import DirectoryBusy, WriteError, atomic_write_text, claim_directory
+from r2pac_jax.errors import R2pacError
+from r2pac_jax.io import WriteError, atomic_write_text, claim_directory
 from r2pac_jax.lanes import Lanes
 from r2pac_jax.loop import (Run, TrainingDiverged, chunk_dataset, compiled,  # noqa: F401
                             is_legacy_run, make_block, make_data, make_train)
@@ -179,10 +180,8 @@ def main(argv=None) -> int:
     def log(msg):
         print(msg, flush=True)
 
-    from r2pac_jax.data import DatasetError, load_task_dataset
-    from r2pac_jax.data.chunks import ChunkError
+    from r2pac_jax.data import load_task_dataset
     from r2pac_jax.loop import check_run
-    from r2pac_jax.tasks import EnvUnavailableError, UnknownTaskError
 
     run = out = None  # what a Ctrl-C reports
     try:
@@ -238,8 +237,7 @@ def main(argv=None) -> int:
                 args.seed_offset, args.seed_offset + cfg.seeds))), physics=args.physics,
                 progress=not args.no_progress, log=log, dataset_label=ds.source)
             results[a] = run.run(resume=args.resume)
-    except (ConfigError, DatasetError, ChunkError, UnknownTaskError, EnvUnavailableError,
-            DirectoryBusy, TrainingDiverged, WriteError) as e:
+    except R2pacError as e:  # every user-facing error: its one line, no traceback
         print(f"error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -8,6 +8,7 @@ import sys
 import time
 
 from r2pac_jax.data.factory import SOURCE_KINDS
+from r2pac_jax.errors import R2pacError
 
 
 def main(argv=None) -> int:
@@ -50,9 +51,7 @@ def main(argv=None) -> int:
     from tqdm import tqdm
 
     from r2pac_jax.data import factory
-    from r2pac_jax.data.dsrl import DatasetError
-    from r2pac_jax.io import DirectoryBusy, WriteError
-    from r2pac_jax.tasks import EnvUnavailableError, UnknownTaskError, get_task
+    from r2pac_jax.tasks import get_task
 
     try:
         task = get_task(args.task)
@@ -92,7 +91,7 @@ def main(argv=None) -> int:
                 path = factory.generate_dataset(task, n, args.seed, progress=bar.update,
                                                 source=args.source, physics=args.physics,
                                                 force=args.force)
-    except (UnknownTaskError, EnvUnavailableError, DatasetError, DirectoryBusy, WriteError) as e:
+    except R2pacError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     print(f"wrote {path} in {time.time() - t0:.1f} s; card {factory.card_path(path)}; "
@@ -103,15 +102,12 @@ def main(argv=None) -> int:
 def _check(args) -> int:
     import json
 
-    from r2pac_jax.config import ConfigError
     from r2pac_jax.data.checks import check_file, checks_path
-    from r2pac_jax.data.dsrl import DatasetError
-    from r2pac_jax.tasks import UnknownTaskError
 
     try:
         seeds = [int(x) for x in args.seeds.split(",") if x]
         res = check_file(args.file, args.task, fast=args.fast, seeds=seeds)
-    except (DatasetError, UnknownTaskError, ConfigError, ValueError) as e:
+    except (R2pacError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     print(json.dumps(res, indent=1))

@@ -20,9 +20,10 @@ import numpy as np
 from flax import struct
 
 from r2pac_jax.data.dsrl import Dataset
+from r2pac_jax.errors import R2pacError
 
 
-class ChunkError(ValueError):
+class ChunkError(R2pacError, ValueError):
     pass
 
 

@@ -13,6 +13,7 @@ from typing import Optional
 
 import numpy as np
 
+from r2pac_jax.errors import R2pacError
 from r2pac_jax.io import atomic_path
 
 FLOAT_KEYS = ("observations", "next_observations", "actions", "rewards", "costs")
@@ -21,7 +22,7 @@ KEYS = FLOAT_KEYS + FLAG_KEYS
 ACTION_BOUND = 1.0 + 1e-4  # DSRL stores the clipped actions sent to the env
 
 
-class DatasetError(ValueError):
+class DatasetError(R2pacError, ValueError):
     """A dataset file is missing, unreadable or inconsistent."""
 
 

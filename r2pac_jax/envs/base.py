@@ -17,6 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from r2pac_jax.errors import R2pacError
+
 
 @struct.dataclass
 class EnvState:
@@ -37,11 +39,11 @@ class EnvState:
         return self.terminated | self.truncated
 
 
-class ActionError(ValueError):
+class ActionError(R2pacError, ValueError):
     pass
 
 
-class BackendUnavailableError(RuntimeError):
+class BackendUnavailableError(R2pacError, RuntimeError):
     """A physics backend cannot run here (not installed, or not built for this task)."""
 
 

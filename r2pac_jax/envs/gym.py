@@ -22,10 +22,11 @@ import numpy as np
 from gymnasium import spaces
 
 from r2pac_jax.envs.base import check_action
+from r2pac_jax.errors import R2pacError
 from r2pac_jax.tasks import TaskSpec, get_task
 
 
-class ResetNeeded(RuntimeError):
+class ResetNeeded(R2pacError, RuntimeError):
     pass
 
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from r2pac_jax.envs.base import BackendUnavailableError, EnvState, check_action
 from r2pac_jax.envs.bullet.robots import ASSETS
+from r2pac_jax.errors import R2pacError
 
 INSTALL = "pip install -e '.[bullet]' (or pip install pybullet==3.2.7)"
 MIB_PER_CLIENT = 29  # resident memory of one DIRECT client with its world (client_cost.py)
@@ -43,7 +44,7 @@ def max_clients() -> int:
 BASE_KEYS = ("pos", "quat", "vel", "angvel", "dpos")
 
 
-class StaleStateError(RuntimeError):
+class StaleStateError(R2pacError, RuntimeError):
     """An EnvState whose simulation has moved on (stepped, reset or released since)."""
 
 
