@@ -1,4 +1,4 @@
-"""IQL critics over action chunks (ALGORITHM.md "Critics"; the paper's Eq. 10-16 and 42).
+"""IQL critics over action chunks (docs/algorithm.md "Critics"; the paper's Eq. 10-16 and 42).
 
 Every target and loss of the critics is written here once; `r2pac.py` wires them together.
 Arguments are per-sample arrays of shape [B] unless stated otherwise.

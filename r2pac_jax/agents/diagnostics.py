@@ -1,6 +1,6 @@
 """Masked statistics for the diagnostics an agent logs beside its losses.
 
-None of these is a formula of ALGORITHM.md: they describe what the critics and the policy do
+None of these is a formula of docs/algorithm.md: they describe what the critics and the policy do
 (how well a critic fits a target, how labels split between safe and unsafe states, whether an
 advantage tracks the reward), never feed back into training, and consume no random keys.
 """

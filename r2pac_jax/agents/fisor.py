@@ -18,7 +18,7 @@ One step of `update` is `FISOR.update`:
    (1 - g) h + g max(h, V_h(s')) where m = 1, h at m = 0), each critic's Polyak at 0.005.
 Data as FISOR prepares them: stage cost h = +25 where the cost is > 0, else -1; rewards x
 L / (R_max - R_min) (its normalize_returns with DSRL's constants); actions clipped to
-1 - 1e-5; m = 0 at terminals AND timeouts (FISOR's rule; ALGORITHM.md bootstraps through
+1 - 1e-5; m = 0 at terminals AND timeouts (FISOR's rule; docs/algorithm.md bootstraps through
 timeouts; `done_rule` switches). Acting: 16 DDPM samples per state from the EMA actor, the one
 with the least Q_h (max over the target ensemble) is taken.
 """

@@ -1,4 +1,4 @@
-"""R2PAC and its ablations (ALGORITHM.md): state pytree, critic and policy updates, the policy.
+"""R2PAC and its ablations (docs/algorithm.md): state pytree, critic and policy updates, the policy.
 
 One module serves `r2pac` and the paper's ablations (`r2pac-no-penalty`, `r2pac-no-vc`,
 `r2pac-awr`, `r2pac-awr-flow`, `r2pac-hj`): each is a set of values of `R2PACConfig` that

@@ -1,4 +1,4 @@
-"""Choice among sampled candidate chunks (ALGORITHM.md: 16 candidates, lowest Q_c)."""
+"""Choice among sampled candidate chunks (docs/algorithm.md: 16 candidates, lowest Q_c)."""
 from __future__ import annotations
 
 import jax

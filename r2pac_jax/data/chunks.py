@@ -1,4 +1,4 @@
-"""h-step chunks of a dataset (ALGORITHM.md, "Data: h-step chunks"), precomputed once.
+"""h-step chunks of a dataset (docs/algorithm.md, "Data: h-step chunks"), precomputed once.
 
 A sample for chunk length h starting at t is
 

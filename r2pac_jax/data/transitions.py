@@ -2,7 +2,7 @@
 
 The view of the one-step offline safe-RL baselines (CPQ, BCQ-Lag, COptiDICE): rows
 (s_t, a_t, r_t, c_t, s_{t+1}, done_t, init_t) sampled uniformly over the dataset. OSRL sets
-done = terminal OR timeout (a timeout ends the reward backup too); ALGORITHM.md's rule for the
+done = terminal OR timeout (a timeout ends the reward backup too); docs/algorithm.md's rule for the
 chunk view is terminal only. Both are offered (`done_rule`), OSRL's being its algorithms'
 default. Reward and cost are multiplied by the run's scales.
 """
