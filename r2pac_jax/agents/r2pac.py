@@ -9,6 +9,7 @@ everything that changes travels in `AgentState`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import chex
@@ -19,7 +20,7 @@ from flax import struct
 
 from r2pac_jax.agents import critics, diagnostics, extraction, flow, gaussian
 from r2pac_jax.agents.base import (ChunkAlgorithm, check_act, check_obs, check_positive,
-                                   check_sizes, soft_update)
+                                   check_sizes, optimizer_step, soft_update)
 from r2pac_jax.agents.selection import select_candidate
 from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data.chunks import Batch, ChunkedData
@@ -169,6 +170,7 @@ class Agent(ChunkAlgorithm):
             self.actor_net = VelocityField(cfg.hidden_dims, self.chunk_size, cfg.time_embed_dim,
                                            cfg.layer_norm)
         self.tx = optax.adam(cfg.lr)
+        self.txs = dict.fromkeys(("qc", "vc", "qr", "vr", "actor"), self.tx)  # one per network
         self.discount_h = cfg.discount**cfg.chunk_len
         self.hj = cfg.cost_critic == "hj"
 
@@ -198,10 +200,6 @@ class Agent(ChunkAlgorithm):
         return AgentState(params=params, target=target, opt=opt, threshold=jnp.zeros(()),
                           step=jnp.zeros((), jnp.int32), key=k_state)
 
-    def _apply_grads(self, state_params, state_opt, name, grads):
-        updates, new_opt = self.tx.update(grads, state_opt[name], state_params[name])
-        return optax.apply_updates(state_params[name], updates), new_opt
-
     # ---- threshold -----------------------------------------------------------------------
     def dataset_threshold(self, params: dict, data: ChunkedData, hp: dict) -> jax.Array:
         """l over the fixed subset of dataset states (0 for the HJ feasibility variant)."""
@@ -220,37 +218,57 @@ class Agent(ChunkAlgorithm):
         return {"threshold": state.threshold}
 
     # ---- updates ---------------------------------------------------------------------------
+    # the four critic losses (docs/algorithm.md, "Critics"): loss(params) -> (loss, output)
+    def cost_value_loss(self, obs, qc_target_max):
+        """V_c: the reversed expectile of the target Q_c ensemble's max (the minimum-cost
+        value; the feasibility value V_z for the HJ variant). obs [B, O], qc_target_max [B]."""
+        def loss(p):
+            vc = self.vc_net.apply(p, obs)
+            u = qc_target_max - vc
+            return critics.reversed_expectile_loss(u, self.cfg.expectile).mean(), vc
+        return loss
+
+    def cost_q_loss(self, obs, chunk, target):
+        """Q_c ensemble [K, B] regressed to C_t + g^h m_t V_c(s_{t+h}) (or the HJ target)."""
+        def loss(p):
+            qs = self.q_net.apply(p, obs, chunk)
+            return critics.q_regression_loss(qs, target), qs
+        return loss
+
+    def reward_value_loss(self, obs, qr_target_min):
+        """Vbar_r: the upper expectile of the target Qbar_r ensemble's min. qr_target_min [B]."""
+        def loss(p):
+            vr = self.v_net.apply(p, obs)
+            return critics.expectile_loss(qr_target_min - vr, self.cfg.expectile).mean(), vr
+        return loss
+
+    def reward_q_loss(self, obs, chunk, target):
+        """Qbar_r ensemble [K, B] regressed to the penalised target (Eq. 12)."""
+        def loss(p):
+            qs = self.q_net.apply(p, obs, chunk)
+            return critics.q_regression_loss(qs, target), qs
+        return loss
+
     def update_critics(self, state: AgentState, batch: Batch, hp: dict):
+        """V_c, Q_c, then Vbar_r, Qbar_r, each one optimiser step (V on the target Qs, Q on the
+        fresh V), then Polyak on the Qs. batch: B chunks of h actions."""
         cfg = self.cfg
         B = batch.observations.shape[0]
         chex.assert_shape(batch.actions, (B, self.h, self.act_dim))
         obs, nobs = batch.observations, batch.next_observations
         chunk = batch.actions.reshape(B, -1)
-        params, opt, tgt = dict(state.params), dict(state.opt), state.target
-        q, v, tau = self.q_net.apply, self.v_net.apply, cfg.expectile
+        params, opt, tgt = state.params, state.opt, state.target
+        step = functools.partial(optimizer_step, self.txs)
 
-        # cost (or feasibility) value: lower expectile of the target Q_c ensemble's max
-        qc_t = q(tgt["qc"], obs, chunk).max(0)
-
-        def vc_loss(p):
-            vc = self.vc_net.apply(p, obs)
-            return critics.reversed_expectile_loss(qc_t - vc, tau).mean(), vc
-
-        (l_vc, vc), g = jax.value_and_grad(vc_loss, has_aux=True)(params["vc"])
-        params["vc"], opt["vc"] = self._apply_grads(params, opt, "vc", g)
+        params, opt, l_vc, vc = step("vc", params, opt, self.cost_value_loss(
+            obs, self.q_net.apply(tgt["qc"], obs, chunk).max(0)))
         vc_next = self.vc_net.apply(params["vc"], nobs)
         if self.hj:
             qc_target = critics.feasibility_target(batch.zmax, batch.bootstrap, self.discount_h,
                                                    vc_next)
         else:
             qc_target = critics.cost_target(batch.cost, batch.bootstrap, self.discount_h, vc_next)
-
-        def qc_loss(p):
-            qs = q(p, obs, chunk)
-            return critics.q_regression_loss(qs, qc_target), qs
-
-        (l_qc, qc), g = jax.value_and_grad(qc_loss, has_aux=True)(params["qc"])
-        params["qc"], opt["qc"] = self._apply_grads(params, opt, "qc", g)
+        params, opt, l_qc, qc = step("qc", params, opt, self.cost_q_loss(obs, chunk, qc_target))
 
         if self.hj:
             threshold = jnp.zeros(())
@@ -259,27 +277,14 @@ class Agent(ChunkAlgorithm):
         else:
             threshold = state.threshold
 
-        # penalised reward value: upper expectile of the target Qbar_r ensemble's min
-        qr_t = q(tgt["qr"], obs, chunk).min(0)
-
-        def vr_loss(p):
-            vr = v(p, obs)
-            return critics.expectile_loss(qr_t - vr, tau).mean(), vr
-
-        (l_vr, vr), g = jax.value_and_grad(vr_loss, has_aux=True)(params["vr"])
-        params["vr"], opt["vr"] = self._apply_grads(params, opt, "vr", g)
-        vr_next = v(params["vr"], nobs)
+        params, opt, l_vr, vr = step("vr", params, opt, self.reward_value_loss(
+            obs, self.q_net.apply(tgt["qr"], obs, chunk).min(0)))
+        vr_next = self.v_net.apply(params["vr"], nobs)
         penalty = critics.penalty_value(hp["penalty_c"], cfg.discount, cfg.penalty_mode)
         qr_target = critics.penalised_reward_target(
             batch.reward, batch.bootstrap, self.discount_h, vr_next, vc_next, threshold, penalty,
             use_penalty=cfg.reward_penalty)
-
-        def qr_loss(p):
-            qs = q(p, obs, chunk)
-            return critics.q_regression_loss(qs, qr_target), qs
-
-        (l_qr, qr), g = jax.value_and_grad(qr_loss, has_aux=True)(params["qr"])
-        params["qr"], opt["qr"] = self._apply_grads(params, opt, "qr", g)
+        params, opt, l_qr, qr = step("qr", params, opt, self.reward_q_loss(obs, chunk, qr_target))
 
         target = {k: soft_update(tgt[k], params[k], cfg.polyak) for k in ("qc", "qr")}
         unsafe_next = (vc_next > threshold) & (batch.bootstrap > 0)
@@ -349,9 +354,8 @@ class Agent(ChunkAlgorithm):
                 return flow.flow_matching_loss(v_pred.reshape(shape), a0.reshape(shape),
                                                batch.actions, mask, weights)
 
-        loss, g = jax.value_and_grad(loss_fn)(state.params["actor"])
-        params, opt = dict(state.params), dict(state.opt)
-        params["actor"], opt["actor"] = self._apply_grads(params, opt, "actor", g)
+        params, opt, loss, _ = optimizer_step(self.txs, "actor", state.params, state.opt,
+                                              lambda p: (loss_fn(p), None))
         metrics["loss_actor"] = loss
         return state.replace(params=params, opt=opt), metrics
 
