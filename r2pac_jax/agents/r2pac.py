@@ -20,7 +20,8 @@ from flax import struct
 
 from r2pac_jax.agents import critics, diagnostics, extraction, flow, gaussian
 from r2pac_jax.agents.base import (ChunkAlgorithm, check_act, check_obs, check_positive,
-                                   check_sizes, optimizer_step, soft_update)
+                                   check_lane_hparams, check_sizes, optimizer_step,
+                                   soft_update)
 from r2pac_jax.agents.selection import select_candidate
 from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data.chunks import Batch, ChunkedData
@@ -107,16 +108,11 @@ def phases(c: R2PACConfig) -> tuple[str, ...]:
 
 
 def check_hparams(values: dict) -> None:
+    """alpha in (0, 1) (a quantile), then the shared rules: known names, finite, >= 0."""
     if "quantile_alpha" in values:
         check_range("quantile_alpha", values["quantile_alpha"], 0, 1, low_open=True,
                     high_open=True)
-    for k in ("penalty_c", "guidance_scale"):
-        if k in values:
-            check_range(k, values[k], 0)
-    unknown = set(values) - set(HPARAMS)
-    if unknown:
-        raise ConfigError(f"cannot vary {sorted(unknown)} across lanes; vmappable "
-                          f"hyperparameters are {list(HPARAMS)}")
+    check_lane_hparams(values, HPARAMS)
 
 
 def validate(c: R2PACConfig) -> None:
