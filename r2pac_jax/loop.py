@@ -228,7 +228,7 @@ class Run:
         return [(p, (i + 1) * self.cfg.threshold_every) for p in self.cfg.phases for i in range(n)]
 
     def _evaluates(self, phase: str, phase_step: int, last: bool) -> bool:
-        if self.evaluator is None or phase == "critic":
+        if self.evaluator is None or phase in self.agent.unevaluated_phases:
             return False
         return last or phase_step % self.cfg.eval_every == 0
 
@@ -296,7 +296,7 @@ class Run:
         finally:
             lock.close()
 
-    def _check_same_run(self) -> None:
+    def check_same_run(self) -> None:
         """A resumed run must be the run that was started: same config, seeds and cells."""
         from r2pac_jax.policy import read_run
 
@@ -331,7 +331,7 @@ class Run:
         if resume:
             # settings are compared whether or not checkpoints remain: a run whose checkpoints
             # are gone must not restart silently under other settings
-            self._check_same_run()
+            self.check_same_run()
         if not resume and (self.out / "checkpoints").is_dir():
             held = Checkpointer(self.out / "checkpoints")
             latest = held.latest_step()
@@ -422,8 +422,9 @@ class Run:
                         self.last_checkpoint = step
                 if bar is not None:
                     post = {"phase": phase}
-                    if "threshold" in metrics:
-                        post["l"] = f"{float(np.mean(metrics['threshold'])):.3g}"
+                    for label, name in self.agent.progress_metrics.items():
+                        if name in metrics:
+                            post[label] = f"{float(np.mean(metrics[name])):.3g}"
                     if last_eval is not None:
                         post["rew"] = f"{float(np.mean(last_eval['normalized_reward'])):.2f}"
                         post["cost"] = f"{float(np.mean(last_eval['normalized_cost'])):.2f}"

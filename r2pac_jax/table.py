@@ -413,7 +413,7 @@ def main(argv=None) -> int:
                           physics=args.physics, progress=not args.no_progress, log=log,
                           dataset_label=ds.source)
                 if (d / "results.json").exists():
-                    run._check_same_run()  # a finished cell is read back, if it is this cell
+                    run.check_same_run()  # a finished cell is read back, if it is this cell
                     cells[t.name][a] = json.loads((d / "results.json").read_text())
                     log("   finished earlier: read back")
                     continue

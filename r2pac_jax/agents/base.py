@@ -36,6 +36,8 @@ class Algorithm(Protocol):
 
     cfg: Config
     plot_metrics: tuple[str, ...]  # metric keys drawn in training.png
+    unevaluated_phases: tuple[str, ...]  # phases with no policy yet (R2PAC's "critic")
+    progress_metrics: dict  # {label: metric key} shown on the progress bar (R2PAC: l)
 
     def check_data(self, task: TaskSpec, ds: Dataset) -> None:
         """Raise ConfigError / ChunkError if the dataset cannot serve this algorithm (cheap)."""
@@ -109,6 +111,8 @@ class ChunkAlgorithm:
     the batch sampler, and no-op hooks."""
 
     plot_metrics: tuple[str, ...] = ("loss_actor",)
+    unevaluated_phases: tuple[str, ...] = ()
+    progress_metrics: dict = {}
     threshold_subset: int = 1  # states kept for a dataset-wide statistic (R2PAC: its quantile)
 
     def __init__(self, cfg: Config, obs_dim: int, act_dim: int):

@@ -151,6 +151,8 @@ class Agent(ChunkAlgorithm):
     plot_metrics = ("loss_qc", "loss_qr", "threshold", "loss_actor", "qr_rmse_penalised",
                     "qr_rmse_unpenalised", "corr_adv_r_reward_safe", "label_balance_safe",
                     "label_balance_unsafe")
+    unevaluated_phases = ("critic",)  # two_phase: no policy is trained until the actor phase
+    progress_metrics = {"l": "threshold"}
 
     def __init__(self, cfg, obs_dim: int, act_dim: int):
         super().__init__(cfg, obs_dim, act_dim)
