@@ -65,3 +65,20 @@ def test_confirmation_needs_half_and_no_flip():
 def test_a_task_left_out_scales_the_bar(left):
     need = decide.qualifies(_scores(BASE), "a", TASKS[:left])[1]["needed"]
     assert need == {7: 5, 6: 5, 4: 3}[left]
+
+
+def test_file_mode_prints_the_path_alone(monkeypatch, capsys, tmp_path):
+    """run.sh reads the pinned file's path from stdout: the simulators' import notes and the
+    generation's output must not reach it (they once made every cell fail)."""
+    mod = load_script("experiments/r2pac_decision/decide.py")
+    f = tmp_path / "X.hdf5"
+
+    def noisy(task, log=print, make=True):
+        print("Failed to import warp: No module named 'warp'")  # what mujoco.mjx prints
+        log(f"{task}: making it again")
+        return f
+
+    monkeypatch.setattr(mod, "pinned_file", noisy)
+    assert mod.main(["--file", "HalfCheetahVelocity"]) == 0
+    out = capsys.readouterr()
+    assert out.out == f"{f}\n" and "warp" in out.err and "making it again" in out.err

@@ -96,7 +96,7 @@ def pinned_file(task: str, make: bool = True, log=print) -> Path:
         cmd = [sys.executable, "-m", "r2pac_jax.data", "make", "--task", task, "--source",
                "ppo-lagrangian"] + (["--budget", m.group(1)] if m else [])
         log(f"{task}: making {want['file']} again: {' '.join(cmd[1:])}")
-        subprocess.run(cmd, check=True)
+        subprocess.run(cmd, check=True, stdout=sys.stderr)  # stdout carries the path only
     if not path.is_file():
         raise FileNotFoundError(f"{path}: the pinned file of {task} is not on this machine")
     t = get_task(task)
@@ -116,11 +116,17 @@ def main(argv=None) -> int:
                     "where missing, its digest checked) and exit")
     args = ap.parse_args(argv)
     if args.file:
+        import contextlib
+
+        # run.sh reads the path from stdout: everything else (the simulators' import notes,
+        # the generation's progress) goes to stderr
         try:
-            print(pinned_file(args.file, log=lambda m: print(m, file=sys.stderr)))
+            with contextlib.redirect_stdout(sys.stderr):
+                path = pinned_file(args.file, log=lambda m: print(m, file=sys.stderr))
         except (FileNotFoundError, ValueError) as e:
             print(f"error: {e}", file=sys.stderr)
             return 1
+        print(path)
         return 0
     root = Path(args.runs)
     scores, missing = read_scores(root, "seeds0-2", DECISION_TASKS, CANDIDATES)

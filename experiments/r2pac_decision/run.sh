@@ -24,6 +24,8 @@ cell() {  # task, candidate, seed offset, seeds label
   if [ -f "$dir/results.json" ]; then echo "== $label $t $c: finished earlier"; return; fi
   f="$(python experiments/r2pac_decision/decide.py --file "$t")" \
     || { echo "!! $t: no pinned file"; return; }
+  f="$(printf '%s\n' "$f" | tail -n 1)"  # the path is the last line, whatever else printed
+  [ -f "$f" ] || { echo "!! $t: no pinned file ($f)"; return; }
   echo "== $label $t $c $(date -u +%FT%TZ)"
   local resume=""
   [ -f "$dir/config.json" ] && resume="--resume"
