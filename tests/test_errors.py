@@ -74,3 +74,4 @@ def test_every_cli_turns_the_base_into_one_line(monkeypatch, tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert rc == 2, (main.__module__, err)
         assert err[-1] == "error: the problem, and the fix", (main.__module__, err)
+
