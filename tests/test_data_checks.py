@@ -4,7 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from r2pac_jax.data import checks
+from r2pac_jax import imitability as checks  # the full checks (cloners trained)
+from r2pac_jax.data import checks as data_checks  # coverage, the file's record
 from r2pac_jax.data.dsrl import validate, write_dsrl
 from r2pac_jax.tasks import get_task
 
@@ -33,14 +34,14 @@ def _episodes(returns, costs, length=80, obs_dim=6, act_dim=2, seed=0):
 def test_coverage_values_and_verdicts():
     task = get_task("ReachAvoid")  # r in [0, 40], kappa 2
     ds = _episodes([0.0, 10.0, 20.0, 38.0, 39.0], [0, 1, 3, 6, 7])
-    cov = checks.coverage(task, ds)
+    cov = data_checks.coverage(task, ds)
     assert cov["best_normalised_return"] == pytest.approx(39 / 40, rel=1e-5)
     assert cov["worst_normalised_return"] == pytest.approx(0.0, abs=1e-6)
     assert cov["max_episode_cost"] == 7.0 and cov["safe_share"] == pytest.approx(0.4)
     assert all(cov["pass"].values())
     # the best safe episode is 10 / 40; the best overall 39 / 40
     assert cov["temptation"] == pytest.approx(29 / 40, rel=1e-5)
-    narrow = checks.coverage(task, _episodes([20.0, 21.0, 22.0], [0, 0, 5]))
+    narrow = data_checks.coverage(task, _episodes([20.0, 21.0, 22.0], [0, 0, 5]))
     assert not narrow["pass"]["best_return"] and not narrow["pass"]["worst_return"]
     assert not narrow["pass"]["max_cost"]  # 5 < 3 kappa = 6
     assert narrow["pass"]["safe_share"] and narrow["pass"]["unsafe_share"]
@@ -53,7 +54,7 @@ def test_fast_check_writes_its_file_and_names_what_failed(tmp_path, capsys):
     write_dsrl(path, _episodes([20.0, 21.0, 22.0], [0, 0, 5]), attrs={"task": "ReachAvoid"})
     assert main(["check", str(path), "--fast"]) == 0
     out = capsys.readouterr().out
-    res = json.loads(checks.checks_path(path).read_text())
+    res = json.loads(data_checks.checks_path(path).read_text())
     assert res["task"] == "ReachAvoid" and res["fast"] and not res["passed"]
     assert res["failed"] == ["best_return", "max_cost", "worst_return"]
     assert "failed: best_return, max_cost, worst_return" in out
@@ -98,4 +99,4 @@ def test_a_file_without_safe_episodes_fails_the_safe_cloners_by_name(tmp_path):
     assert {"safe_share", "bc-safe_safe", "bc-safe_return", "bc-safe-mlp_safe",
             "bc-safe-mlp_return"} <= set(res["failed"])
     assert "normalized_cost" in imi["bc-all-mlp"]  # the all-data cloner still trains
-    assert json.loads(checks.checks_path(path).read_text())["failed"] == res["failed"]
+    assert json.loads(data_checks.checks_path(path).read_text())["failed"] == res["failed"]

@@ -16,7 +16,7 @@ def _generate_learned(task: TaskSpec, announce: Callable[[str], None],
     """No data for a MuJoCo task: make DSRL's learned-behaviour data at DSRL's size (hours on a
     CPU, resumable: the same command continues it), then its fast checks."""
     from r2pac_jax.data import factory
-    from r2pac_jax.data.checks import check_file
+    from r2pac_jax.data.checks import check_coverage
     from r2pac_jax.data.factory.collect import estimate_hours
 
     c = task.collection
@@ -30,7 +30,7 @@ def _generate_learned(task: TaskSpec, announce: Callable[[str], None],
              "ppo-lagrangian (--budget N for a smaller, recorded budget)")
     path = factory.generate_dataset(task, c.trajectories, seed=0, source="ppo-lagrangian",
                                     progress=progress, log=announce)
-    res = check_file(path, task.name, fast=True, log=announce)
+    res = check_coverage(path, task.name)
     announce(f"dataset: {path} (generated); coverage checks "
              f"{'passed' if res['passed'] else 'failed: ' + ', '.join(res['failed'])} "
              f"({path}.checks.json); the imitability checks: python -m r2pac_jax.data check "

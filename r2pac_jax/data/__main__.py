@@ -102,7 +102,8 @@ def main(argv=None) -> int:
 def _check(args) -> int:
     import json
 
-    from r2pac_jax.data.checks import check_file, checks_path
+    from r2pac_jax.data.checks import checks_path
+    from r2pac_jax.imitability import check_file
 
     try:
         seeds = [int(x) for x in args.seeds.split(",") if x]
