@@ -20,11 +20,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from r2pac_jax.agents import make_agent
-from r2pac_jax.config import Config, ConfigError, default_hparams
+from r2pac_jax.config import Config, default_hparams
 from r2pac_jax.data.dsrl import Dataset
 from r2pac_jax.errors import R2pacError
-from r2pac_jax.io import atomic_write_json, claim_directory, lock_directory, sigint_deferred
+from r2pac_jax.io import sigint_deferred
 from r2pac_jax.lanes import Lanes, place
+from r2pac_jax.run_dir import RunDirectory, config_changes, is_legacy_run  # noqa: F401
 from r2pac_jax.tasks import TaskSpec
 
 
@@ -158,27 +159,6 @@ def check_run(cfg: Config, task: TaskSpec, ds: Dataset) -> None:
     make_agent(cfg, task.obs_dim, task.act_dim).check_data(task, ds)
 
 
-def is_legacy_run(path: Path) -> bool:
-    """A run directory written before directories were marked: its config.json and lanes.json
-    read back as a run's, or it holds nothing but what a run killed before writing them left."""
-    from r2pac_jax.policy import read_run
-
-    try:
-        cfg, lanes = read_run(path)
-    except FileNotFoundError:
-        return {p.name for p in path.iterdir()} <= {".lock", "checkpoints"}
-    return isinstance(lanes, dict) and "seeds" in lanes and bool(cfg.task)
-
-
-def config_changes(old: Config, new: Config) -> list[str]:
-    """Flat keys whose values differ between two configs, as 'key: old -> new'."""
-    a, b = old.flat(), new.flat()
-    a.update(task=old.task, algo=old.algo)
-    b.update(task=new.task, algo=new.algo)
-    return [f"{k}: {a.get(k)!r} -> {b.get(k)!r}" for k in sorted(set(a) | set(b))
-            if a.get(k) != b.get(k)]
-
-
 # ---------------------------------------------------------------------------------------------
 # The run: blocks between evaluations and checkpoints
 
@@ -201,6 +181,7 @@ class Run:
         self.diverged: dict[int, dict] = {}  # lane -> {seed, step, terms}
         self.cfg, self.task, self.lanes = cfg, task, lanes
         self.out = Path(out_dir)
+        self.dir = RunDirectory(self.out)  # its files and rules (run_dir.py)
         self.physics = physics
         self.progress = progress
         self.log = log
@@ -286,42 +267,12 @@ class Run:
         """Train to the end (or stop after `stop_after` blocks, as an interruption would, and
         return None); with `resume`, continue from the latest checkpoint in the run directory.
         The directory is locked meanwhile: a second live process on it gets DirectoryBusy."""
-        # refused before the lock file is made; marked once the lock is held (a directory that
-        # another live process writes is left untouched)
-        claim_directory(self.out, "run", legacy=is_legacy_run, check_only=True)
-        lock = lock_directory(self.out)
-        try:
-            claim_directory(self.out, "run", legacy=is_legacy_run)
+        with self.dir.held():
             return self._run(resume, stop_after)
-        finally:
-            lock.close()
 
     def check_same_run(self) -> None:
         """A resumed run must be the run that was started: same config, seeds and cells."""
-        from r2pac_jax.policy import read_run
-
-        try:
-            old_cfg, old_lanes = read_run(self.out)
-        except FileNotFoundError:
-            return
-        diff = config_changes(old_cfg, self.cfg)
-        import json
-
-        stored = json.loads((self.out / "config.json").read_text()).get("dataset", {})
-        if stored.get("sha256") not in (None, self.dataset_info["sha256"]):
-            diff.append(f"dataset: {stored.get('source')} ({stored.get('transitions')} "
-                        f"transitions, sha256 {stored['sha256'][:12]}) -> "
-                        f"{self.dataset_info['source']} ({self.dataset_info['transitions']}, "
-                        f"{self.dataset_info['sha256'][:12]})")
-        for k in ("seeds", "cell_hparams"):
-            if old_lanes.get(k) != getattr(self.lanes, k):
-                diff.append(f"{k}: {old_lanes.get(k)} -> {getattr(self.lanes, k)}")
-        if old_lanes.get("physics", self.physics) != self.physics:  # evaluation's backend
-            diff.append(f"physics: {old_lanes['physics']!r} -> {self.physics!r}")
-        if diff:
-            raise ConfigError(f"--resume: {self.out} was started with other settings ("
-                              f"{'; '.join(diff)}); resume it with the options it was started "
-                              "with, or choose another --out")
+        self.dir.check_same_run(self.cfg, self.lanes, self.dataset_info, self.physics)
 
     def _run(self, resume: bool, stop_after: Optional[int]) -> Optional[dict]:
         from r2pac_jax.checkpoint import Checkpointer
@@ -332,14 +283,8 @@ class Run:
             # settings are compared whether or not checkpoints remain: a run whose checkpoints
             # are gone must not restart silently under other settings
             self.check_same_run()
-        if not resume and (self.out / "checkpoints").is_dir():
-            held = Checkpointer(self.out / "checkpoints")
-            latest = held.latest_step()
-            held.close()
-            if latest is not None:
-                raise ConfigError(f"{self.out} already holds a run (checkpoint at step "
-                                  f"{latest}); pass --resume to continue it or choose another "
-                                  "--out")
+        if not resume:
+            self.dir.refuse_existing_run()
         self.check_memory()  # before anything of the run is allocated or created
         self.out.mkdir(parents=True, exist_ok=True)
         ckpt = Checkpointer(self.out / "checkpoints")
@@ -357,13 +302,8 @@ class Run:
             self.diverged = {int(k): v for k, v in meta.get("diverged", {}).items()}
             resume_step = self.step_reached = self.last_checkpoint = latest
             self.log(f"resuming {self.out} from step {latest}")
-        import json
-
-        atomic_write_json(self.out / "config.json",
-                          dict(json.loads(cfg.to_json()), dataset=self.dataset_info))
-        atomic_write_json(self.out / "lanes.json", dict(
-            seeds=self.lanes.seeds, cells=self.lanes.cells, cell_hparams=self.lanes.cell_hparams,
-            task=self.task.name, dataset=self.dataset_label, physics=self.physics))
+        self.dir.write_identity(cfg, self.dataset_info, self.lanes, self.task.name,
+                                self.dataset_label, self.physics)
         logs = MetricsLog(self.out, resume_step=resume_step)
         hp = place(self.lanes.hp, self.lanes.size)
         schedule = self.schedule
@@ -438,7 +378,7 @@ class Run:
                 last_eval = self.evaluate(state, total)
             self.save_policy(state)
             results = self.results(state, last_eval, wall, steps_timed, resume_step)
-            atomic_write_json(self.out / "results.json", results)
+            self.dir.write_results(results)
             self.plot(logs)
             return results
         finally:
@@ -476,12 +416,10 @@ class Run:
 
     def save_policy(self, state) -> None:
         """The final policy parameters of every lane (what `load_policy` reads)."""
-        from r2pac_jax.checkpoint import save_policy
-
-        save_policy(self.out / "policy", self.cfg.total_steps,
-                    self._policy_params(state, self.lanes.hp),
-                    {"task": self.task.name, "algo": self.cfg.algo, "lanes": self.lanes.size,
-                     "obs_dim": self.task.obs_dim, "act_dim": self.task.act_dim})
+        self.dir.save_policy(self.cfg.total_steps, self._policy_params(state, self.lanes.hp),
+                             {"task": self.task.name, "algo": self.cfg.algo,
+                              "lanes": self.lanes.size, "obs_dim": self.task.obs_dim,
+                              "act_dim": self.task.act_dim})
 
     def results(self, state, ev: Optional[dict], wall: float, steps: int,
                 resumed_from_step: int = 0) -> dict:
@@ -504,7 +442,5 @@ class Run:
         return out
 
     def plot(self, logs) -> None:
-        from r2pac_jax.report import plot_run
-
-        plot_run(logs, self.out, f"{self.task.name} {self.cfg.algo}", self.agent.plot_metrics)
+        self.dir.plot(logs, f"{self.task.name} {self.cfg.algo}", self.agent.plot_metrics)
 
