@@ -67,3 +67,8 @@ def test_cells_not_run_show_a_dash_and_do_not_count_in_the_verdict(pc, tmp_path)
     assert car.endswith("| **0.95 / 0.80** | 0.50 / 2.00 † |")
     assert "the same in 2 of 3 cells" in out
     assert "outside the paper's table: OurTask" in out
+    assert out.endswith("Every task of the paper's table has a row here.")
+    # a paper task without a row of ours is named
+    _table(ours, [("CarRun", "cdt", 0.9, 0.1)])
+    out = pc.compare(pc.paper_table(paper), pc.our_table(ours))
+    assert out.endswith("Paper tasks without a row here: AntVelocity.")

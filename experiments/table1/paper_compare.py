@@ -85,9 +85,12 @@ def compare(paper: dict, ours: dict) -> str:
                  f"each method's published budget; here: this project's data v2, CPU quick preset. "
                  f"The safe/unsafe verdict is the same in {agree} of {total} cells; –: not run here "
                  "yet.")
-    missing = sorted(t for t in ours if t not in paper)
-    if missing:
-        lines.append(f"Tasks of ours outside the paper's table: {', '.join(missing)}.")
+    extra = sorted(t for t in ours if t not in paper)
+    if extra:
+        lines.append(f"Tasks of ours outside the paper's table: {', '.join(extra)}.")
+    absent = sorted(t for t in paper if t not in ours)
+    lines.append(f"Paper tasks without a row here: {', '.join(absent)}." if absent else
+                 "Every task of the paper's table has a row here.")
     return "\n".join(lines)
 
 
