@@ -275,25 +275,64 @@ class Run:
         self.dir.check_same_run(self.cfg, self.lanes, self.dataset_info, self.physics)
 
     def _run(self, resume: bool, stop_after: Optional[int]) -> Optional[dict]:
-        from r2pac_jax.checkpoint import Checkpointer
         from r2pac_jax.metrics_log import MetricsLog
 
         cfg = self.cfg
+        ckpt, state, done_blocks, resume_step = self._start(resume)
+        logs = MetricsLog(self.out, resume_step=resume_step)
+        hp = place(self.lanes.hp, self.lanes.size)
+        schedule = self.schedule
+        bar = self._progress_bar(len(schedule) * cfg.threshold_every,
+                                 done_blocks * cfg.threshold_every)
+        last_eval, t_start, steps_timed = None, time.time(), 0
+        try:
+            for i in range(done_blocks, len(schedule)):
+                if stop_after is not None and i - done_blocks >= stop_after:
+                    return None
+                phase, phase_step = schedule[i]
+                step, last = (i + 1) * cfg.threshold_every, i == len(schedule) - 1
+                t0 = time.time()
+                state, metrics, first_bad = self._blocks[phase](state, hp, self.data)
+                metrics = jax.tree_util.tree_map(np.asarray, metrics)  # waits for the block
+                steps_timed += cfg.threshold_every
+                self.step_reached = step
+                self._log_block(logs, metrics, step, phase, time.time() - t0)
+                self._check_finite(metrics, step - cfg.threshold_every + 1 + np.asarray(first_bad),
+                                   ckpt.latest_step())
+                if self._evaluates(phase, phase_step, last):
+                    last_eval = self.evaluate(state, step)
+                    self._log_eval(logs, last_eval, step)
+                if last or step % cfg.checkpoint_every == 0:
+                    self._save(ckpt, step, state, i + 1)
+                self._show(bar, phase, metrics, last_eval)
+            if bar is not None:
+                bar.close()
+                bar = None
+            return self._finish(state, last_eval, time.time() - t_start, steps_timed,
+                                resume_step, logs)
+        finally:
+            if bar is not None:
+                bar.close()
+            logs.close()
+            ckpt.close()
+
+    def _start(self, resume: bool):
+        """Checks, then the checkpointer and the starting state: (ckpt, state, blocks done,
+        step resumed from). The logs keep rows up to the step training starts from: 0 unless a
+        checkpoint is restored, so an attempt that died before its first checkpoint leaves no
+        rows behind (they would repeat the steps this run writes again)."""
+        from r2pac_jax.checkpoint import Checkpointer
+
         if resume:
             # settings are compared whether or not checkpoints remain: a run whose checkpoints
             # are gone must not restart silently under other settings
             self.check_same_run()
-        if not resume:
+        else:
             self.dir.refuse_existing_run()
         self.check_memory()  # before anything of the run is allocated or created
         self.out.mkdir(parents=True, exist_ok=True)
         ckpt = Checkpointer(self.out / "checkpoints")
-        state = self.init_state()
-        done_blocks = 0
-        # The logs keep rows up to the step training starts from: 0 unless a checkpoint is
-        # restored, so an attempt that died before its first checkpoint leaves no rows behind
-        # (they would repeat the steps this run writes again).
-        resume_step = 0
+        state, done_blocks, resume_step = self.init_state(), 0, 0
         self.step_reached, self.last_checkpoint = 0, None
         if resume and ckpt.latest_step() is not None:
             latest, state, meta = ckpt.restore_newest_readable(state, log=self.log)
@@ -302,90 +341,69 @@ class Run:
             self.diverged = {int(k): v for k, v in meta.get("diverged", {}).items()}
             resume_step = self.step_reached = self.last_checkpoint = latest
             self.log(f"resuming {self.out} from step {latest}")
-        self.dir.write_identity(cfg, self.dataset_info, self.lanes, self.task.name,
+        self.dir.write_identity(self.cfg, self.dataset_info, self.lanes, self.task.name,
                                 self.dataset_label, self.physics)
-        logs = MetricsLog(self.out, resume_step=resume_step)
-        hp = place(self.lanes.hp, self.lanes.size)
-        schedule = self.schedule
-        total = len(schedule) * cfg.threshold_every
-        bar = None
-        if self.progress:
-            from tqdm import tqdm
+        return ckpt, state, done_blocks, resume_step
 
-            bar = tqdm(total=total, initial=done_blocks * cfg.threshold_every, unit="step",
-                       desc=f"{self.task.name} {cfg.algo}", dynamic_ncols=True, smoothing=0.1)
-        last_eval = None
-        t_start = time.time()
-        steps_timed = 0
-        try:
-            for i in range(done_blocks, len(schedule)):
-                if stop_after is not None and i - done_blocks >= stop_after:
-                    return None
-                phase, phase_step = schedule[i]
-                step = (i + 1) * cfg.threshold_every
-                t0 = time.time()
-                state, metrics, first_bad = self._blocks[phase](state, hp, self.data)
-                metrics = jax.tree_util.tree_map(np.asarray, metrics)  # waits for the block
-                first_bad = np.asarray(first_bad)
-                dt = time.time() - t0
-                steps_timed += cfg.threshold_every
-                self.step_reached = step
-                with sigint_deferred():  # a block's rows are logged whole
-                    for lane in range(self.lanes.size):
-                        row = {k: float(v[lane]) for k, v in metrics.items()}
-                        row.update(step=step, phase=phase, lane=lane,
-                                   seed=self.lanes.seeds[lane],
-                                   steps_per_s=cfg.threshold_every / dt)
-                        logs.write("metrics", row, tb_prefix=f"train/lane{lane}")
-                self._check_finite(metrics, step - cfg.threshold_every + 1 + first_bad,
-                                   ckpt.latest_step())
-                last = i == len(schedule) - 1
-                if self._evaluates(phase, phase_step, last):
-                    res = self.evaluate(state, step)
-                    last_eval = res
-                    for lane in range(self.lanes.size):
-                        logs.write("eval", dict(
-                            step=step, lane=lane, seed=self.lanes.seeds[lane],
-                            normalized_reward=float(res["normalized_reward"][lane]),
-                            normalized_cost=float(res["normalized_cost"][lane]),
-                            mean_return=float(res["returns"][lane].mean()),
-                            mean_cost=float(res["costs"][lane].mean()),
-                            mean_length=float(res["mean_length"][lane]),
-                            terminal_share=float(res["terminal_share"][lane]),
-                            **{k: float(v[lane]) for k, v in res["diagnostics"].items()}),
-                            tb_prefix=f"eval/lane{lane}")
-                if last or step % cfg.checkpoint_every == 0:
-                    with sigint_deferred():  # Ctrl-C waits for the save to finish
-                        ckpt.save(step, state, {"blocks_done": i + 1, "step": step,
-                                                "diverged": {str(k): v for k, v in
-                                                             self.diverged.items()}})
-                        self.last_checkpoint = step
-                if bar is not None:
-                    post = {"phase": phase}
-                    for label, name in self.agent.progress_metrics.items():
-                        if name in metrics:
-                            post[label] = f"{float(np.mean(metrics[name])):.3g}"
-                    if last_eval is not None:
-                        post["rew"] = f"{float(np.mean(last_eval['normalized_reward'])):.2f}"
-                        post["cost"] = f"{float(np.mean(last_eval['normalized_cost'])):.2f}"
-                    bar.set_postfix(post, refresh=False)
-                    bar.update(cfg.threshold_every)
-            if bar is not None:
-                bar.close()
-                bar = None
-            wall = time.time() - t_start
-            if last_eval is None and self.evaluator is not None:  # resumed after the last block
-                last_eval = self.evaluate(state, total)
-            self.save_policy(state)
-            results = self.results(state, last_eval, wall, steps_timed, resume_step)
-            self.dir.write_results(results)
-            self.plot(logs)
-            return results
-        finally:
-            if bar is not None:
-                bar.close()
-            logs.close()
-            ckpt.close()
+    def _progress_bar(self, total: int, initial: int):
+        if not self.progress:
+            return None
+        from tqdm import tqdm
+
+        return tqdm(total=total, initial=initial, unit="step", dynamic_ncols=True,
+                    desc=f"{self.task.name} {self.cfg.algo}", smoothing=0.1)
+
+    def _log_block(self, logs, metrics: dict, step: int, phase: str, dt: float) -> None:
+        """One metrics row per lane; a block's rows are logged whole (Ctrl-C waits)."""
+        with sigint_deferred():
+            for lane in range(self.lanes.size):
+                row = {k: float(v[lane]) for k, v in metrics.items()}
+                row.update(step=step, phase=phase, lane=lane, seed=self.lanes.seeds[lane],
+                           steps_per_s=self.cfg.threshold_every / dt)
+                logs.write("metrics", row, tb_prefix=f"train/lane{lane}")
+
+    def _log_eval(self, logs, res: dict, step: int) -> None:
+        for lane in range(self.lanes.size):
+            logs.write("eval", dict(
+                step=step, lane=lane, seed=self.lanes.seeds[lane],
+                normalized_reward=float(res["normalized_reward"][lane]),
+                normalized_cost=float(res["normalized_cost"][lane]),
+                mean_return=float(res["returns"][lane].mean()),
+                mean_cost=float(res["costs"][lane].mean()),
+                mean_length=float(res["mean_length"][lane]),
+                terminal_share=float(res["terminal_share"][lane]),
+                **{k: float(v[lane]) for k, v in res["diagnostics"].items()}),
+                tb_prefix=f"eval/lane{lane}")
+
+    def _save(self, ckpt, step: int, state, blocks_done: int) -> None:
+        with sigint_deferred():  # Ctrl-C waits for the save to finish
+            ckpt.save(step, state, {"blocks_done": blocks_done, "step": step,
+                                    "diverged": {str(k): v for k, v in self.diverged.items()}})
+            self.last_checkpoint = step
+
+    def _show(self, bar, phase: str, metrics: dict, last_eval: Optional[dict]) -> None:
+        if bar is None:
+            return
+        post = {"phase": phase}
+        for label, name in self.agent.progress_metrics.items():
+            if name in metrics:
+                post[label] = f"{float(np.mean(metrics[name])):.3g}"
+        if last_eval is not None:
+            post["rew"] = f"{float(np.mean(last_eval['normalized_reward'])):.2f}"
+            post["cost"] = f"{float(np.mean(last_eval['normalized_cost'])):.2f}"
+        bar.set_postfix(post, refresh=False)
+        bar.update(self.cfg.threshold_every)
+
+    def _finish(self, state, last_eval, wall: float, steps_timed: int, resume_step: int,
+                logs) -> dict:
+        """The final evaluation (if the last block had none), the policy, results and plots."""
+        if last_eval is None and self.evaluator is not None:  # resumed after the last block
+            last_eval = self.evaluate(state, len(self.schedule) * self.cfg.threshold_every)
+        self.save_policy(state)
+        results = self.results(state, last_eval, wall, steps_timed, resume_step)
+        self.dir.write_results(results)
+        self.plot(logs)
+        return results
 
     def _check_finite(self, metrics: dict, bad_step: np.ndarray, last_good: Optional[int]) -> None:
         """bad_step [L]: the first non-finite step of each lane in the block (run steps)."""
