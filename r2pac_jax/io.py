@@ -138,29 +138,37 @@ class DirectoryBusy(R2pacError, RuntimeError):
     """Another live process is writing the same run directory."""
 
 
-def lock_file(path, what: str = "file"):
-    """Hold `{path}.lock` exclusively (flock; released when the returned file is closed or the
-    process ends, even by SIGKILL); DirectoryBusy when another live process holds it."""
+def _hold(lock: Path, busy: str):
+    """Open `lock` and take its flock (released when the file is closed or the process ends,
+    even by SIGKILL), recording the holder in it; DirectoryBusy(`busy` with the holder named
+    where <holder> stands) when another live process holds it. The caller made the parent."""
     import fcntl
     import socket
 
-    lock = Path(f"{path}.lock")
-    with writing(lock, "the lock file"):
-        lock.parent.mkdir(parents=True, exist_ok=True)
-        f = open(lock, "a+")
+    f = open(lock, "a+")
     try:
         fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         f.seek(0)
         holder = f.read().strip() or "an unknown process"
         f.close()
-        raise DirectoryBusy(f"the {what} {path} is being written by {holder}; wait for it to "
-                            "finish or stop it, then rerun") from None
+        raise DirectoryBusy(busy.replace("<holder>", holder)) from None  # paths may hold braces
     f.seek(0)
     f.truncate()
     f.write(f"pid {os.getpid()} on {socket.gethostname()}\n")
     f.flush()
     return f
+
+
+def lock_file(path, what: str = "file"):
+    """Hold `{path}.lock` exclusively (flock; released when the returned file is closed or the
+    process ends, even by SIGKILL); DirectoryBusy when another live process holds it."""
+    lock = Path(f"{path}.lock")
+    with writing(lock, "the lock file"):
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        lock.touch()
+    return _hold(lock, f"the {what} {path} is being written by <holder>; wait for it to "
+                       "finish or stop it, then rerun")
 
 
 def remove_orphaned_temporaries(path) -> list[Path]:
@@ -181,30 +189,16 @@ def lock_directory(path):
     The lock is the kernel's (flock), so a killed process, even by SIGKILL, releases it: a
     restarted run is never refused by a stale lock, while a second live writer of the same
     directory (a launcher started twice) is refused before it writes anything."""
-    import fcntl
-    import socket
-
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise WriteError(errno.EEXIST, f"{path} is a file, not a directory: choose a directory "
                          "path (for --out, a new or existing run directory)")
     with writing(path, "the directory"):
         path.mkdir(parents=True, exist_ok=True)
-        f = open(path / ".lock", "a+")
-    try:
-        fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        f.seek(0)
-        holder = f.read().strip() or "an unknown process"
-        f.close()
-        raise DirectoryBusy(f"{path} is being written by {holder}; wait for it to finish or "
-                            "stop it, then rerun (with --resume to continue from its last "
-                            "checkpoint)") from None
-    f.seek(0)
-    f.truncate()
-    f.write(f"pid {os.getpid()} on {socket.gethostname()}\n")
-    f.flush()
-    return f
+        (path / ".lock").touch()
+    return _hold(path / ".lock", f"{path} is being written by <holder>; wait for it to "
+                                 "finish or stop it, then rerun (with --resume to continue "
+                                 "from its last checkpoint)")
 
 
 # ---------------------------------------------------------------------------------------------
