@@ -55,8 +55,9 @@ class PPOLagConfig:
     init_log_std: float = -0.5  # DSRL's sigma init
     pid: Sequence[float] = (0.05, 0.005, 0.1)  # DSRL's KP, KI, KD
     # "tanh": DSRL's tanh-squashed Gaussian mean; "none": an unsquashed mean (actions are
-    # clipped either way). A per-task recipe value: first-order PPO cannot leave a saturated
-    # tanh where TRPO's natural gradient does (SwimmerVelocity, GENERATION.md)
+    # clipped either way). A per-task recipe value, tried on SwimmerVelocity, whose learner
+    # keeps half its mean actions in the saturated tanh: it did not bring the cost under the
+    # limit there (GENERATION.md, "SwimmerVelocity: why its learner never meets the last limit")
     mean_squash: str = "tanh"
 
     def validate(self) -> None:
