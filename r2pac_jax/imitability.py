@@ -69,7 +69,6 @@ def imitability(task: TaskSpec, path, cov: dict, seeds: Sequence[int], out_dir,
     return out
 
 
-
 def check_file(path, task_name: Optional[str] = None, fast: bool = False,
                seeds: Sequence[int] = DEFAULT_SEEDS, work_dir=None,
                log: Callable[[str], None] = print, overrides: Optional[dict] = None) -> dict:

@@ -25,7 +25,7 @@ from r2pac_jax.data.dsrl import Dataset
 from r2pac_jax.errors import R2pacError
 from r2pac_jax.io import sigint_deferred
 from r2pac_jax.lanes import Lanes, place
-from r2pac_jax.run_dir import RunDirectory, config_changes, is_legacy_run  # noqa: F401
+from r2pac_jax.run_dir import RunDirectory
 from r2pac_jax.tasks import TaskSpec
 
 

@@ -314,7 +314,7 @@ def is_legacy_table(path: Path) -> bool:
     it holds nothing but a table's files and TASK/ALGO cells that are runs (a pipeline copies
     finished runs in before the table command first writes its manifest)."""
     from r2pac_jax.io import marker_kind
-    from r2pac_jax.loop import is_legacy_run
+    from r2pac_jax.run_dir import is_legacy_run
 
     try:
         if "datasets" in json.loads((path / "manifest.json").read_text()):

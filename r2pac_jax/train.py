@@ -21,7 +21,8 @@ from r2pac_jax.errors import R2pacError
 from r2pac_jax.io import WriteError, atomic_write_text, claim_directory
 from r2pac_jax.lanes import Lanes
 from r2pac_jax.loop import (Run, TrainingDiverged, chunk_dataset, compiled,  # noqa: F401
-                            is_legacy_run, make_block, make_data, make_train)
+                            make_block, make_data, make_train)
+from r2pac_jax.run_dir import is_legacy_run
 from r2pac_jax.tasks import TaskSpec, get_task
 
 _TYPE_WORDS = {bool: "true or false", int: "an integer", float: "a number",

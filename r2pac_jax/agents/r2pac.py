@@ -216,7 +216,7 @@ class Agent(ChunkAlgorithm):
         return {"threshold": state.threshold}
 
     # ---- updates ---------------------------------------------------------------------------
-    # the four critic losses (docs/algorithm.md, "Critics"): loss(params) -> (loss, output)
+    # the critic losses (docs/algorithm.md, "Critics"): loss(params) -> (loss, output)
     def cost_value_loss(self, obs, qc_target_max):
         """V_c: the reversed expectile of the target Q_c ensemble's max (the minimum-cost
         value; the feasibility value V_z for the HJ variant). obs [B, O], qc_target_max [B]."""
@@ -226,8 +226,10 @@ class Agent(ChunkAlgorithm):
             return critics.reversed_expectile_loss(u, self.cfg.expectile).mean(), vc
         return loss
 
-    def cost_q_loss(self, obs, chunk, target):
-        """Q_c ensemble [K, B] regressed to C_t + g^h m_t V_c(s_{t+h}) (or the HJ target)."""
+    def q_loss(self, obs, chunk, target):
+        """A Q ensemble [K, B] regressed to its target [B]: Q_c to C_t + g^h m_t V_c(s_{t+h})
+        (or the HJ target), Qbar_r to the penalised target (Eq. 12); one network class serves
+        both (`q_net`), so one loss does."""
         def loss(p):
             qs = self.q_net.apply(p, obs, chunk)
             return critics.q_regression_loss(qs, target), qs
@@ -238,13 +240,6 @@ class Agent(ChunkAlgorithm):
         def loss(p):
             vr = self.v_net.apply(p, obs)
             return critics.expectile_loss(qr_target_min - vr, self.cfg.expectile).mean(), vr
-        return loss
-
-    def reward_q_loss(self, obs, chunk, target):
-        """Qbar_r ensemble [K, B] regressed to the penalised target (Eq. 12)."""
-        def loss(p):
-            qs = self.q_net.apply(p, obs, chunk)
-            return critics.q_regression_loss(qs, target), qs
         return loss
 
     def update_critics(self, state: AgentState, batch: Batch, hp: dict):
@@ -266,7 +261,7 @@ class Agent(ChunkAlgorithm):
                                                    vc_next)
         else:
             qc_target = critics.cost_target(batch.cost, batch.bootstrap, self.discount_h, vc_next)
-        params, opt, l_qc, qc = step("qc", params, opt, self.cost_q_loss(obs, chunk, qc_target))
+        params, opt, l_qc, qc = step("qc", params, opt, self.q_loss(obs, chunk, qc_target))
 
         if self.hj:
             threshold = jnp.zeros(())
@@ -282,7 +277,7 @@ class Agent(ChunkAlgorithm):
         qr_target = critics.penalised_reward_target(
             batch.reward, batch.bootstrap, self.discount_h, vr_next, vc_next, threshold, penalty,
             use_penalty=cfg.reward_penalty)
-        params, opt, l_qr, qr = step("qr", params, opt, self.reward_q_loss(obs, chunk, qr_target))
+        params, opt, l_qr, qr = step("qr", params, opt, self.q_loss(obs, chunk, qr_target))
 
         target = {k: soft_update(tgt[k], params[k], cfg.polyak) for k in ("qc", "qr")}
         unsafe_next = (vc_next > threshold) & (batch.bootstrap > 0)

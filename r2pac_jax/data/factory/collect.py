@@ -135,12 +135,13 @@ def make_spec(task: TaskSpec, trajectories: Optional[int] = None, env_steps: Opt
     sched = pl.CostSchedule(float(c.cost_start), float(c.cost_end),
                             int(round(c.epoch_start * c.steps_per_epoch * frac)),
                             max(1, int(round(c.epoch_end * c.steps_per_epoch * frac))))
+    values = {**dict(c.ppo), **(ppo or {})}
     known = {f.name for f in dataclasses.fields(pl.PPOLagConfig)}
-    for k in {**dict(c.ppo), **(ppo or {})}:
+    for k in values:
         if k not in known:
             raise DatasetError(f"{task.name}: the generator has no recipe value {k!r}; known: "
                                f"{', '.join(sorted(known))}")
-    cfg = pl.PPOLagConfig(**{**dict(c.ppo), **(ppo or {})})
+    cfg = pl.PPOLagConfig(**values)
     cfg.validate()
     if physics == "auto":
         physics = ("auto" if task.family == "demo" else "bullet" if task.family == "bullet"
