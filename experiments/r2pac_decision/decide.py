@@ -1,9 +1,10 @@
 """The decision rule of PROTOCOL.md, as code written before any decision run.
 
-    python experiments/r2pac_decision/decide.py [--runs runs/r2pac_decision]
+    python experiments/r2pac_decision/decide.py [--runs experiments/r2pac_decision/cells]
 
-reads each cell's results.json (runs/r2pac_decision/seeds0-2/TASK/ID and, for the confirmation,
-seeds3-5/TASK/ID), prints the verdict with its numbers and writes them to
+reads each cell's results.json (cells/seeds0-2/TASK/ID and, for the confirmation,
+seeds3-5/TASK/ID: the finished cells that `run.sh keep` copied from runs/r2pac_decision into the
+repo), prints the verdict with its numbers and writes them to
 experiments/r2pac_decision/decision.json. A cell not yet run is listed as missing: no verdict
 is taken on missing cells.
 """
@@ -110,7 +111,7 @@ def pinned_file(task: str, make: bool = True, log=print) -> Path:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="decide.py")
-    ap.add_argument("--runs", default="runs/r2pac_decision")
+    ap.add_argument("--runs", default=str(Path(__file__).with_name("cells")))
     ap.add_argument("--out", default=str(Path(__file__).with_name("decision.json")))
     ap.add_argument("--file", metavar="TASK", help="print the task's pinned file (made again "
                     "where missing, its digest checked) and exit")

@@ -4,11 +4,26 @@
 #   nice -n 5 bash experiments/r2pac_decision/run.sh decide > runs/r2pac_decision.log 2>&1
 #   nice -n 5 bash experiments/r2pac_decision/run.sh confirm WINNER >> runs/r2pac_decision.log 2>&1
 # then: python experiments/r2pac_decision/decide.py
+#   bash experiments/r2pac_decision/run.sh keep   # finished cells' results into the repo
+# A cell kept in experiments/r2pac_decision/cells (committed) is never run again: a machine and
+# its runs/ folder may not outlive a session, the repo does.
+# TASKS="BallRun DroneRun" runs only those decision tasks (their order kept as given), so that two
+# lanes on two cores each make their own files and cells without touching the other's.
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 OUT="${OUT:-runs/r2pac_decision}"
+KEPT="experiments/r2pac_decision/cells"
 DECISION="HalfCheetahVelocity Walker2dVelocity HopperVelocity BallRun DroneRun CarGoal2 PointGoal2"
 CONFIRM="$DECISION AntVelocity BallCircle CarButton1 PointButton1"
+only() {  # the tasks of list $1 that TASKS names (all of them where TASKS is unset)
+  [ -z "${TASKS:-}" ] && { echo "$1"; return; }
+  local t out=""
+  for t in $TASKS; do
+    case " $1 " in *" $t "*) out="$out $t" ;;
+      *) echo "TASKS: $t is not one of this stage's tasks ($1)" >&2; return 2 ;; esac
+  done
+  echo "$out"
+}
 sets_of() {
   case "$1" in
     0) echo "" ;;
@@ -21,7 +36,9 @@ sets_of() {
 cell() {  # task, candidate, seed offset, seeds label
   local t="$1" c="$2" off="$3" label="$4" f dir
   dir="$OUT/$label/$t/$c"
-  if [ -f "$dir/results.json" ]; then echo "== $label $t $c: finished earlier"; return; fi
+  if [ -f "$dir/results.json" ] || [ -f "$KEPT/$label/$t/$c/results.json" ]; then
+    echo "== $label $t $c: finished earlier"; return
+  fi
   f="$(python experiments/r2pac_decision/decide.py --file "$t")" \
     || { echo "!! $t: no pinned file"; return; }
   f="$(printf '%s\n' "$f" | tail -n 1)"  # the path is the last line, whatever else printed
@@ -36,9 +53,17 @@ cell() {  # task, candidate, seed offset, seeds label
 }
 case "${1:-decide}" in
   decide)
-    for t in $DECISION; do for c in 0 a b c; do cell "$t" "$c" 0 seeds0-2; done; done ;;
+    tasks="$(only "$DECISION")" || exit 2
+    for t in $tasks; do for c in 0 a b c; do cell "$t" "$c" 0 seeds0-2; done; done ;;
   confirm)
     w="${2:?confirm needs the winning candidate id}"
-    for t in $CONFIRM; do for c in 0 "$w"; do cell "$t" "$c" 3 seeds3-5; done; done ;;
-  *) echo "usage: run.sh decide | confirm WINNER" >&2; exit 2 ;;
+    tasks="$(only "$CONFIRM")" || exit 2
+    for t in $tasks; do for c in 0 "$w"; do cell "$t" "$c" 3 seeds3-5; done; done ;;
+  keep)  # results.json and config.json of each finished cell; its checkpoints stay in runs/
+    for f in "$OUT"/*/*/*/results.json; do
+      [ -f "$f" ] || continue
+      d="$(dirname "$f")"; k="$KEPT/${d#"$OUT"/}"
+      mkdir -p "$k" && cp "$d/results.json" "$d/config.json" "$k/" && echo "kept $k"
+    done ;;
+  *) echo "usage: run.sh decide | confirm WINNER | keep" >&2; exit 2 ;;
 esac
