@@ -15,12 +15,14 @@ import dataclasses
 import json
 from typing import Any, Optional
 
-from r2pac_jax.errors import R2pacError
+from r2pac_jax.agents import algo_module, algo_names
+from r2pac_jax.errors import ConfigError
+from r2pac_jax.ranges import check_range
 from r2pac_jax.tasks import TaskSpec, get_task
 
-
-class ConfigError(R2pacError, ValueError):
-    pass
+__all__ = ["Config", "ConfigError", "check_range", "make_config", "validate_config",
+           "field_types", "default_hparams", "check_hparams", "resolve_preset", "switch_keys",
+           "refuse_user_key", "GENERIC_KEYS", "RUN_IDENTITY", "PRESETS"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,8 +58,6 @@ class Config:
     # ---- derived -------------------------------------------------------------------------
     @property
     def phases(self) -> tuple[str, ...]:
-        from r2pac_jax.agents import algo_module
-
         return algo_module(self.algo).phases(self.agent)
 
     @property
@@ -88,8 +88,6 @@ class Config:
     @staticmethod
     def from_dict(d: dict) -> "Config":
         """From `to_json`'s layout, or the flat layout of runs made before the agent protocol."""
-        from r2pac_jax.agents import algo_module
-
         d = dict(d)
         cls = algo_module(d.get("algo", "r2pac")).CONFIG
         own = d.pop("agent", None)
@@ -138,8 +136,6 @@ def resolve_preset(preset: str) -> tuple[str, str]:
 def switch_keys() -> dict[str, list[str]]:
     """Keys that algorithm variants set (e.g. reward_penalty for r2pac-no-penalty) -> the
     `--algo` names that set them: users choose these with --algo, never with --set."""
-    from r2pac_jax.agents import algo_module, algo_names
-
     out: dict[str, list[str]] = {}
     for name in algo_names():
         for k in algo_module(name).VARIANTS[name]:
@@ -162,8 +158,6 @@ def refuse_user_key(key: str, where: str) -> None:
 
 def field_types(algo: str) -> dict[str, type]:
     """Every key `algo` accepts (generic and its own) -> the type of its default."""
-    from r2pac_jax.agents import algo_module
-
     cls = algo_module(algo).CONFIG
     gen = Config(task="x")
     out = {k: type(getattr(gen, k)) for k in GENERIC_KEYS}
@@ -175,8 +169,6 @@ def field_types(algo: str) -> dict[str, type]:
 def make_config(task: str | TaskSpec, algo: str = "r2pac", preset: str = "quick",
                 overrides: Optional[dict] = None) -> Config:
     """Task values, then the presets, then the algorithm's switches, then explicit overrides."""
-    from r2pac_jax.agents import algo_module
-
     spec = task if isinstance(task, TaskSpec) else get_task(task)
     mod = algo_module(algo)
     preset, _ = resolve_preset(preset)
@@ -208,29 +200,8 @@ def make_config(task: str | TaskSpec, algo: str = "r2pac", preset: str = "quick"
     return cfg
 
 
-def check_range(name: str, value, low=None, high=None, low_open=False, high_open=False) -> None:
-    """Raise ConfigError unless low <= value <= high (open ends exclude the bound); arrays too."""
-    import numpy as np
-
-    v = np.asarray(value, dtype=float)
-    ok = np.isfinite(v)
-    if low is not None:
-        ok &= (v > low) if low_open else (v >= low)
-    if high is not None:
-        ok &= (v < high) if high_open else (v <= high)
-    if not np.all(ok):
-        lo = "" if low is None else ("(" if low_open else "[") + f"{low}"
-        hi = "" if high is None else f"{high}" + (")" if high_open else "]")
-        where = (f"lie in {lo}, {hi}" if low is not None and high is not None
-                 else f"be {'>' if low_open else '>='} {low}" if low is not None
-                 else f"be {'<' if high_open else '<='} {high}")
-        raise ConfigError(f"{name} must {where}, got {value}")
-
-
 def validate_config(cfg: Config, spec: Optional[TaskSpec] = None) -> None:
     """Raise ConfigError naming the bad value and what would be valid."""
-    from r2pac_jax.agents import algo_module
-
     spec = spec or get_task(cfg.task)
     for k, choices in CHOICES.items():
         if getattr(cfg, k) not in choices:
@@ -261,13 +232,9 @@ def default_hparams(cfg: Config) -> dict:
     These may differ between the lanes of one compiled program (see `lanes.Lanes`)."""
     import jax.numpy as jnp
 
-    from r2pac_jax.agents import algo_module
-
     return {k: jnp.float32(getattr(cfg, k)) for k in algo_module(cfg.algo).HPARAMS}
 
 
 def check_hparams(algo: str, values: dict) -> None:
     """Check per-lane values of the vmappable scalars (each grid cell is checked too)."""
-    from r2pac_jax.agents import algo_module
-
     algo_module(algo).check_hparams(values)

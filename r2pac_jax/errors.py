@@ -10,3 +10,8 @@ from __future__ import annotations
 
 class R2pacError(Exception):
     """Base of the library's user-facing errors (config, data, tasks, runs, files)."""
+
+
+class ConfigError(R2pacError, ValueError):
+    """A configuration value (or key) a run cannot use; raised by `config`, `ranges` and each
+    algorithm's own checks, below the algorithms so that they and the planner share it."""

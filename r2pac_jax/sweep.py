@@ -28,10 +28,10 @@ from pathlib import Path
 from typing import Any, Optional
 
 from r2pac_jax.agents import algo_module
-from r2pac_jax.config import (ConfigError, field_types, make_config, refuse_user_key,
-                              resolve_preset)
+from r2pac_jax.config import ConfigError, field_types, refuse_user_key, resolve_preset
 from r2pac_jax.errors import R2pacError
 from r2pac_jax.io import atomic_write_json, atomic_write_text, claim_directory
+from r2pac_jax.planner import plan
 
 TOP_KEYS = {"name", "description", "task", "tasks", "algo", "algos", "preset", "seeds",
             "eval_episodes", "physics", "dataset", "config", "grid"}
@@ -216,10 +216,10 @@ def load_sweep(path, task_override: Optional[str] = None) -> Sweep:
         over = dict(g.static)
         over.update(seeds=len(seeds), eval_episodes=eval_episodes)
         try:
-            cfg = make_config(g.task, g.algo, preset, over)
+            cfg = plan(g.task, g.algo, preset, over)
             for c in g.cells:  # every cell's own values must be valid too
-                make_config(g.task, g.algo, preset, dict(c.values, seeds=len(seeds),
-                                                         eval_episodes=eval_episodes))
+                plan(g.task, g.algo, preset, dict(c.values, seeds=len(seeds),
+                                                  eval_episodes=eval_episodes))
         except (ConfigError, KeyError) as e:
             raise SweepError(f"{path}: {e}") from e
         configs[g.group_id] = cfg

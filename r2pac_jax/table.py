@@ -100,19 +100,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _configs(task, algos, args):
-    from r2pac_jax.config import make_config
-    from r2pac_jax.train import fit_blocks_to_steps
+    """Each algorithm's cell config on `task`: one evaluation, at the end (the table reports
+    the final policy)."""
+    from r2pac_jax.planner import plan
 
-    out = {}
-    for a in algos:
-        over = dict(seeds=args.seeds, eval_episodes=args.episodes if task.has_env else 0)
-        if args.steps is not None:
-            over["steps"] = args.steps
-            fit_blocks_to_steps(over, args.preset)
-        cfg = make_config(task, a, args.preset, over)
-        # one evaluation, at the end: the table reports the final policy
-        out[a] = cfg.replace(eval_every=cfg.steps)
-    return out
+    return {a: plan(task, a, args.preset, dict(seeds=args.seeds, steps=args.steps,
+                                               eval_episodes=args.episodes if task.has_env else 0),
+                    final_eval_only=True)
+            for a in algos}
 
 
 def _manifest(out: Path, args, datasets: dict) -> dict:

@@ -15,15 +15,15 @@ from pathlib import Path
 from typing import Sequence
 
 from r2pac_jax.agents import algo_module, algo_names
-from r2pac_jax.config import (PRESETS, Config, ConfigError, field_types, make_config,
-                              refuse_user_key, resolve_preset)
+from r2pac_jax.config import Config, ConfigError, field_types, refuse_user_key, resolve_preset
 from r2pac_jax.errors import R2pacError
 from r2pac_jax.io import WriteError, atomic_write_text, claim_directory
 from r2pac_jax.lanes import Lanes
 from r2pac_jax.loop import (Run, TrainingDiverged, chunk_dataset, compiled,  # noqa: F401
                             make_block, make_data, make_train)
+from r2pac_jax.planner import plan
 from r2pac_jax.run_dir import is_legacy_run
-from r2pac_jax.tasks import TaskSpec, get_task
+from r2pac_jax.tasks import get_task
 
 _TYPE_WORDS = {bool: "true or false", int: "an integer", float: "a number",
                tuple: "comma-separated integers", str: "a string"}
@@ -92,47 +92,6 @@ def build_parser() -> argparse.ArgumentParser:
                     help="any config value, e.g. --set quantile_alpha=0.8 (repeatable)")
     ap.add_argument("--no-progress", action="store_true")
     return ap
-
-
-def fit_blocks_to_steps(overrides: dict, preset: str) -> None:
-    """A `--steps` shorter than (or not a multiple of) the preset's block would be refused by
-    the config check; shrink the block (threshold refresh, evaluation and checkpoint periods) to
-    fit, unless the user set those explicitly. Refreshing the threshold more often is harmless."""
-    import math
-
-    steps = overrides.get("steps")
-    if steps is None or steps < 1:
-        return
-    preset_values = PRESETS[resolve_preset(preset)[0]]
-    block = overrides.get("threshold_every") or preset_values["threshold_every"]
-    if steps % block == 0 or "threshold_every" in overrides:
-        return
-    block = math.gcd(steps, block)
-    overrides["threshold_every"] = block
-    for k in ("eval_every", "checkpoint_every"):
-        if overrides.get(k) is None:
-            period = min(preset_values[k], steps)
-            overrides[k] = max(block, period - period % block)
-
-
-def plan_algo(task: TaskSpec, algo: str, args, sets: dict, main_algo: bool, log) -> Config:
-    """The config of one algorithm of the job. The requested algorithm refuses options that do
-    not apply to it; a baseline drops them with a note (e.g. --chunk-len for a one-step cloner,
-    --set quantile_alpha for a cloner)."""
-    mod = algo_module(algo)
-    types = field_types(algo)
-    overrides = dict(steps=args.steps, chunk_len=args.chunk_len, seeds=args.seeds,
-                     eval_episodes=args.eval_episodes, eval_every=args.eval_every)
-    overrides.update(sets)
-    if not main_algo:
-        dropped = [k for k, v in overrides.items() if v is not None and (
-            k not in types or (k in mod.FIXED and v != mod.FIXED[k]))]
-        for k in dropped:
-            log(f"note: baseline {algo} does not use {k}={overrides.pop(k)!r}; ignored for it")
-    fit_blocks_to_steps(overrides, args.preset)
-    if not task.has_env and overrides.get("eval_episodes") is None:
-        overrides["eval_episodes"] = 0
-    return make_config(task, algo, args.preset, overrides)
 
 
 def describe(cfg: Config) -> str:
@@ -213,7 +172,12 @@ def main(argv=None) -> int:
         if unknown_main:
             raise ConfigError(f"--set {', '.join(unknown_main)}: not a config key of {args.algo} "
                               f"(its keys: {', '.join(sorted(field_types(args.algo)))})")
-        cfgs = {a: plan_algo(task, a, args, sets, a == args.algo, log) for a in algos}
+        asked = dict(steps=args.steps, chunk_len=args.chunk_len, seeds=args.seeds,
+                     eval_episodes=args.eval_episodes, eval_every=args.eval_every)
+        asked.update(sets)  # --set KEY=VALUE wins over the option of the same key
+        # the requested algorithm refuses an option it cannot use; a baseline drops it (a note)
+        cfgs = {a: plan(task, a, args.preset, asked, baseline=a != args.algo, log=log)
+                for a in algos}
         task.check_physics(args.physics)
         if not task.has_env and args.eval_episodes is None:
             log(f"note: {task.name} has no environment in this install; training without "

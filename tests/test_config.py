@@ -74,7 +74,7 @@ def test_auto_preset_says_what_it_chose():
 
 
 def test_cli_steps_shorter_than_the_block_fit_the_block():
-    from r2pac_jax.train import fit_blocks_to_steps
+    from r2pac_jax.planner import fit_blocks_to_steps
 
     over = dict(steps=200)
     fit_blocks_to_steps(over, "quick")

@@ -12,6 +12,8 @@ import importlib
 from types import ModuleType
 from typing import Any, Callable
 
+from r2pac_jax.errors import ConfigError
+
 # module names under r2pac_jax.agents, in the order `--algo`'s help lists them
 MODULES = ("r2pac", "bc_flow", "bc_mlp", "cpq", "bcq_lag", "coptidice", "fisor", "cdt")
 
@@ -90,8 +92,6 @@ def algo_module(algo: str) -> ModuleType:
     """The module implementing `algo`; ConfigError naming the known algorithms otherwise."""
     names = algo_names()
     if algo not in _ALGOS:
-        from r2pac_jax.config import ConfigError
-
         raise ConfigError(f"unknown algo {algo!r}; choose one of {', '.join(names)}")
     module = importlib.import_module(f"r2pac_jax.agents.{_ALGOS[algo]}")
     if module.__name__ not in _CHECKED:  # once per module: a broken contract fails loudly

@@ -17,16 +17,20 @@ evaluates `act` on `policy_params`, and writes the same logs and results.
 """
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import chex
 import jax
 from flax import struct
 
-from r2pac_jax.config import Config, ConfigError
 from r2pac_jax.data import chunks, transitions
 from r2pac_jax.data.dsrl import Dataset
+from r2pac_jax.errors import ConfigError
+from r2pac_jax.ranges import check_range
 from r2pac_jax.tasks import TaskSpec
+
+if TYPE_CHECKING:  # the config sits above the agents: a type only, never imported at run time
+    from r2pac_jax.config import Config
 
 
 class Algorithm(Protocol):
@@ -208,8 +212,6 @@ def cost_limit_task_values(spec) -> dict:
 
 def check_lane_hparams(values: dict, hparams, positive=()) -> None:
     """Per-lane values of vmappable scalars: known names, finite, >= 0 (> 0 for `positive`)."""
-    from r2pac_jax.config import check_range
-
     unknown = set(values) - set(hparams)
     if unknown:
         raise ConfigError(f"cannot vary {sorted(unknown)} across lanes; vmappable "
@@ -233,8 +235,6 @@ def no_hparams(values: dict) -> None:
 
 
 def check_positive(name: str, value) -> None:
-    from r2pac_jax.config import check_range
-
     check_range(name, value, 0, low_open=True)
 
 

@@ -16,8 +16,8 @@ import optax
 from r2pac_jax.agents import flow
 from r2pac_jax.agents.base import (ActorState, ChunkAlgorithm, actor_only, check_act, check_obs,
                                    check_positive, check_sizes, no_hparams, no_task_values)
-from r2pac_jax.config import ConfigError
 from r2pac_jax.data.chunks import Batch
+from r2pac_jax.errors import ConfigError
 from r2pac_jax.nets import NULL_LABEL, VelocityField
 
 

@@ -31,9 +31,10 @@ from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, c
                                    check_sizes, cost_limit_task_values, optimizer_step, osrl_presets,
                                    soft_update)
 from r2pac_jax.agents.constraints import pid_multiplier, q_threshold
-from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch
+from r2pac_jax.errors import ConfigError
 from r2pac_jax.nets import VAE, TorchMLP, TorchQEnsemble, vae_loss, vae_sample_latent
+from r2pac_jax.ranges import check_range
 
 
 @dataclasses.dataclass(frozen=True)

@@ -47,14 +47,15 @@ import numpy as np
 import optax
 from flax import struct
 
+from r2pac_jax.agents import gaussian
 from r2pac_jax.agents.base import (ChunkAlgorithm, actor_only, check_act, check_choice,
                                    check_counts, check_dataset_sizes, check_lane_hparams,
                                    check_obs, check_positive)
-from r2pac_jax.agents import gaussian
 from r2pac_jax.agents.decision_transformer import DecisionTransformer
-from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data import sequences
 from r2pac_jax.data.sequences import SequenceBatch, SequenceData
+from r2pac_jax.errors import ConfigError
+from r2pac_jax.ranges import check_range
 
 # OSRL's per-task augmentation constants (cdt_configs.py at 03a4586), in DSRL's return units:
 # dsrl id -> (deg, max_reward, max_rew_decrease, min_reward)

@@ -33,9 +33,9 @@ from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, c
                                    check_counts, check_lane_hparams, check_obs, check_positive,
                                    check_sizes, cost_limit_task_values, osrl_presets)
 from r2pac_jax.agents.constraints import q_threshold
-from r2pac_jax.config import check_range
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch, TransitionData
 from r2pac_jax.nets import SquashedGaussianActor, TorchQEnsemble
+from r2pac_jax.ranges import check_range
 
 
 @dataclasses.dataclass(frozen=True)

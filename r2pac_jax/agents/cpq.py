@@ -36,10 +36,10 @@ from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, c
                                    check_sizes, cost_limit_task_values, optimizer_step, osrl_presets,
                                    soft_update)
 from r2pac_jax.agents.constraints import q_threshold
-from r2pac_jax.config import check_range
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch
 from r2pac_jax.nets import (VAE, SquashedGaussianActor, TorchQEnsemble, squashed_sample, vae_kl,
                            vae_loss)
+from r2pac_jax.ranges import check_range
 
 
 @dataclasses.dataclass(frozen=True)

@@ -36,9 +36,10 @@ from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, c
                                    check_counts, check_lane_hparams, check_obs, check_positive,
                                    check_sizes, optimizer_step, soft_update)
 from r2pac_jax.agents.critics import expectile_loss, reversed_expectile_loss
-from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch
+from r2pac_jax.errors import ConfigError
 from r2pac_jax.nets import NoiseModel, StateValueNet, XavierQEnsemble
+from r2pac_jax.ranges import check_range
 
 
 @dataclasses.dataclass(frozen=True)

@@ -23,9 +23,10 @@ from r2pac_jax.agents.base import (ChunkAlgorithm, check_act, check_obs, check_p
                                    check_lane_hparams, check_sizes, optimizer_step,
                                    soft_update)
 from r2pac_jax.agents.selection import select_candidate
-from r2pac_jax.config import ConfigError, check_range
 from r2pac_jax.data.chunks import Batch, ChunkedData
+from r2pac_jax.errors import ConfigError
 from r2pac_jax.nets import NULL_LABEL, GaussianActor, QEnsemble, ValueNet, VelocityField
+from r2pac_jax.ranges import check_range
 
 
 @dataclasses.dataclass(frozen=True)

@@ -503,7 +503,7 @@ def generate_learned(task: TaskSpec, path: Path, trajectories: Optional[int] = N
     import resource
 
     from r2pac_jax.data.dsrl import validate, write_dsrl
-    from r2pac_jax.data.factory import card_path, make_card
+    from r2pac_jax.data.factory.card import card_path, make_card
     from r2pac_jax.io import atomic_write_json
     from r2pac_jax.report import plot_composition
 
