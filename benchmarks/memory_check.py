@@ -34,7 +34,7 @@ from r2pac_jax.tasks import get_task
 task_name, algo, lanes = sys.argv[1], sys.argv[2], int(sys.argv[3])
 task = get_task(task_name)
 # ten-step blocks: a block's memory does not depend on its length (one scan body)
-cfg = make_config(task, algo, "quick", dict(seeds=lanes, steps=20, threshold_every=10,
+cfg = make_config(task, algo, "quick", dict(seeds=lanes, steps=20, block_steps=10,
                                             eval_every=10, checkpoint_every=10))
 ds = load_task_dataset(task, announce=lambda m: None, progress=False)
 _, init, blocks, _ = compiled(cfg, task.obs_dim, task.act_dim)

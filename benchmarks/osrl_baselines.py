@@ -225,7 +225,7 @@ def scores(args, task, ds, file: str, out: Path) -> dict:
 
     seeds = list(range(args.seeds))
     over = dict(steps=args.steps, seeds=args.seeds, eval_episodes=args.episodes,
-                eval_every=args.steps, checkpoint_every=args.steps, threshold_every=args.block)
+                eval_every=args.steps, checkpoint_every=args.steps, block_steps=args.block)
     if args.no_augmentation:
         over["augment_percent"] = 0.0
     cfg = make_config(task, args.algo, args.preset, over)  # paper: OSRL's settings

@@ -30,6 +30,6 @@ def algo_speed(task, ds, algo: str, lanes: int, blocks: int = 5, block_steps: in
     from r2pac_jax.loop import time_block
 
     cfg = make_config(task, algo, preset, dict(
-        over or {}, steps=block_steps, threshold_every=block_steps, eval_every=block_steps,
+        over or {}, steps=block_steps, block_steps=block_steps, eval_every=block_steps,
         checkpoint_every=block_steps))
     return dict(time_block(cfg, task, ds, lanes, blocks), algo=algo, batch=cfg.batch_size)

@@ -31,7 +31,7 @@ def main():
     ap.add_argument("--preset", default="quick")
     args = ap.parse_args()
     task = get_task("ReachAvoid")
-    cfg = make_config(task, "r2pac", args.preset, dict(steps=args.steps, threshold_every=500,
+    cfg = make_config(task, "r2pac", args.preset, dict(steps=args.steps, block_steps=500,
                                                         eval_every=args.steps,
                                                         checkpoint_every=args.steps))
     ds = load_task_dataset(task, announce=lambda m: None)

@@ -2,7 +2,7 @@
 
     python benchmarks/train_speed.py [--presets quick,paper] [--seeds 1,4] [--blocks 3]
 
-Times the compiled block (threshold refresh + `threshold_every` critic or actor steps) on the
+Times the compiled block (threshold refresh + `block_steps` critic or actor steps) on the
 ReachAvoid dataset (network sizes follow the preset, so the figures transfer to any task with
 similar observation/action sizes). Prints one JSON line per measurement.
 """
@@ -20,7 +20,7 @@ from r2pac_jax.machine import record
 
 def measure(preset: str, seeds: int, phase: str, blocks: int, block_steps: int, overrides=None):
     task = get_task("ReachAvoid")
-    cfg = make_config(task, "r2pac", preset, dict(threshold_every=block_steps,
+    cfg = make_config(task, "r2pac", preset, dict(block_steps=block_steps,
                                                   eval_every=block_steps,
                                                   checkpoint_every=block_steps, steps=block_steps,
                                                   **(overrides or {})))

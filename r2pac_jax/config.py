@@ -33,7 +33,8 @@ class Config:
     # optimisation loop
     steps: int = 20_000  # per phase (R2PAC's two_phase schedule has two)
     batch_size: int = 256
-    threshold_every: int = 1000  # the block: steps per compiled scan, metrics per block
+    block_steps: int = 1000  # the block: steps per compiled scan, metrics (R2PAC: its threshold)
+    # per block; named threshold_every before 2026-12-07 (RENAMED)
     # data view
     chunk_len: int = 5
     discount: float = 0.99
@@ -88,7 +89,7 @@ class Config:
     @staticmethod
     def from_dict(d: dict) -> "Config":
         """From `to_json`'s layout, or the flat layout of runs made before the agent protocol."""
-        d = dict(d)
+        d = {RENAMED.get(k, k): v for k, v in d.items()}  # a run's config.json of an older name
         cls = algo_module(d.get("algo", "r2pac")).CONFIG
         own = d.pop("agent", None)
         if own is None:  # flat: the algorithm's keys sit beside the generic ones
@@ -104,6 +105,9 @@ def _names(cls) -> set[str]:
 
 
 GENERIC_KEYS = _names(Config) - {"agent"}
+# Keys renamed since runs were first written: config.json files keep the old name (read as the
+# new one by `Config.from_dict`); a user who writes the old name is told the new one.
+RENAMED = {"threshold_every": "block_steps"}
 # Set by the command line's own arguments (or the sweep file's axes), never by --set.
 RUN_IDENTITY = ("task", "algo", "preset")
 
@@ -111,10 +115,10 @@ RUN_IDENTITY = ("task", "algo", "preset")
 PRESETS: dict[str, dict[str, Any]] = {
     # Table 3 of the paper.
     "paper": dict(steps=600_000, batch_size=1024, eval_every=50_000, checkpoint_every=50_000,
-                  threshold_every=1000),
+                  block_steps=1000),
     # Few steps: minutes on a 2-core CPU.
     "quick": dict(steps=20_000, batch_size=256, eval_every=5_000, checkpoint_every=5_000,
-                  threshold_every=500),
+                  block_steps=500),
 }
 
 CHOICES = {"data_filter": ("all", "safe")}
@@ -144,7 +148,11 @@ def switch_keys() -> dict[str, list[str]]:
 
 
 def refuse_user_key(key: str, where: str) -> None:
-    """ConfigError for keys a user sets elsewhere: the run's identity, seeds, variant switches."""
+    """ConfigError for keys a user sets elsewhere (the run's identity, seeds, variant switches)
+    or no longer under that name."""
+    if key in RENAMED:
+        raise ConfigError(f"{where} {key}=...: {key} is now called {RENAMED[key]}; write "
+                          f"{RENAMED[key]}=... instead")
     if key in RUN_IDENTITY:
         raise ConfigError(f"{where} {key}=...: {key} is chosen with --{key}, not here")
     if key == "seeds":
@@ -184,6 +192,8 @@ def make_config(task: str | TaskSpec, algo: str = "r2pac", preset: str = "quick"
     for k, v in given.items():
         if k in RUN_IDENTITY:
             raise ConfigError(f"{k} cannot be overridden ({k}={v!r}); choose it with --{k}")
+        if k in RENAMED:
+            refuse_user_key(k, "config key")
         if k not in types:
             raise ConfigError(f"unknown config key {k!r} for {algo}; known keys: "
                               f"{', '.join(sorted(types))}")
@@ -212,7 +222,7 @@ def validate_config(cfg: Config, spec: Optional[TaskSpec] = None) -> None:
     if cfg.chunk_len > spec.episode_len:
         raise ConfigError(f"chunk_len {cfg.chunk_len} is longer than an episode of {spec.name} "
                           f"({spec.episode_len} steps); choose --chunk-len <= {spec.episode_len}")
-    for k in ("steps", "batch_size", "seeds", "threshold_every", "eval_every", "checkpoint_every"):
+    for k in ("steps", "batch_size", "seeds", "block_steps", "eval_every", "checkpoint_every"):
         if getattr(cfg, k) < 1:
             raise ConfigError(f"{k} must be >= 1, got {getattr(cfg, k)}")
     for k in ("reward_scale", "cost_scale"):
@@ -220,9 +230,9 @@ def validate_config(cfg: Config, spec: Optional[TaskSpec] = None) -> None:
     if cfg.eval_episodes < 0:
         raise ConfigError(f"eval_episodes must be >= 0, got {cfg.eval_episodes}")
     for k in ("steps", "eval_every", "checkpoint_every"):
-        if getattr(cfg, k) % cfg.threshold_every:
-            raise ConfigError(f"{k}={getattr(cfg, k)} must be a multiple of threshold_every="
-                              f"{cfg.threshold_every} (the compiled block)")
+        if getattr(cfg, k) % cfg.block_steps:
+            raise ConfigError(f"{k}={getattr(cfg, k)} must be a multiple of block_steps="
+                              f"{cfg.block_steps} (the compiled block)")
     algo_module(cfg.algo).validate(cfg.agent)
 
 

@@ -1,7 +1,7 @@
 """The training loop every algorithm shares: pure compiled blocks, and the run that drives them.
 
 The unit of compiled work is a *block*: the agent's `begin_block` (R2PAC refreshes its safety
-threshold), then `threshold_every` gradient steps in one `jax.lax.scan`, returning the block's
+threshold), then `block_steps` gradient steps in one `jax.lax.scan`, returning the block's
 mean metrics. Blocks are vmapped over *lanes* (seeds x scalar-hyperparameter cells, `lanes.py`),
 so a grid of seeds and hyperparameters trains as one compiled program. `make_train` chains every
 block of every phase into one scan (pure, no I/O); `Run` calls the same vmapped block from
@@ -48,7 +48,7 @@ chunk_dataset = make_data  # the name of earlier releases
 
 
 def make_block(agent, phase: str, first_bad: bool = False) -> Callable:
-    """block(state, hp, data) -> (state, metrics): begin_block + `threshold_every` steps.
+    """block(state, hp, data) -> (state, metrics): begin_block + `block_steps` steps.
 
     With `first_bad`, also the index (0-based, within the block) of the first step whose
     metrics hold a NaN or inf, or -1: the run names the exact step of a divergence."""
@@ -62,7 +62,7 @@ def make_block(agent, phase: str, first_bad: bool = False) -> Callable:
             batch = agent.sample(data, k_batch)
             return agent.update(s.replace(key=key), batch, hp, phase)
 
-        state, metrics = jax.lax.scan(step, state, None, length=cfg.threshold_every)
+        state, metrics = jax.lax.scan(step, state, None, length=cfg.block_steps)
         means = jax.tree_util.tree_map(jnp.mean, metrics)
         if not first_bad:
             return state, means
@@ -94,9 +94,9 @@ def time_block(cfg: Config, task: TaskSpec, ds: Dataset, lanes: int, blocks: int
         jax.block_until_ready(state)
         times.append(time.perf_counter() - t0)
     dt = float(np.median(times))
-    return dict(lanes=lanes, block_steps=cfg.threshold_every,
-                steps_per_s=cfg.threshold_every / dt,
-                seed_steps_per_s=lanes * cfg.threshold_every / dt, compile_s=compile_s)
+    return dict(lanes=lanes, block_steps=cfg.block_steps,
+                steps_per_s=cfg.block_steps / dt,
+                seed_steps_per_s=lanes * cfg.block_steps / dt, compile_s=compile_s)
 
 
 def make_train(cfg: Config, data, obs_dim: int, act_dim: int):
@@ -108,7 +108,7 @@ def make_train(cfg: Config, data, obs_dim: int, act_dim: int):
     """
     agent = make_agent(cfg, obs_dim, act_dim)
     blocks = {p: make_block(agent, p) for p in cfg.phases}
-    n_blocks = cfg.steps // cfg.threshold_every
+    n_blocks = cfg.steps // cfg.block_steps
 
     def train_with_data(key, hp, data):
         state = agent.init(key, hp)
@@ -205,8 +205,8 @@ class Run:
     @property
     def schedule(self) -> list[tuple[str, int]]:
         """(phase, step within phase after the block) for every block of the run."""
-        n = self.cfg.steps // self.cfg.threshold_every
-        return [(p, (i + 1) * self.cfg.threshold_every) for p in self.cfg.phases for i in range(n)]
+        n = self.cfg.steps // self.cfg.block_steps
+        return [(p, (i + 1) * self.cfg.block_steps) for p in self.cfg.phases for i in range(n)]
 
     def _evaluates(self, phase: str, phase_step: int, last: bool) -> bool:
         if self.evaluator is None or phase in self.agent.unevaluated_phases:
@@ -282,22 +282,22 @@ class Run:
         logs = MetricsLog(self.out, resume_step=resume_step)
         hp = place(self.lanes.hp, self.lanes.size)
         schedule = self.schedule
-        bar = self._progress_bar(len(schedule) * cfg.threshold_every,
-                                 done_blocks * cfg.threshold_every)
+        bar = self._progress_bar(len(schedule) * cfg.block_steps,
+                                 done_blocks * cfg.block_steps)
         last_eval, t_start, steps_timed = None, time.time(), 0
         try:
             for i in range(done_blocks, len(schedule)):
                 if stop_after is not None and i - done_blocks >= stop_after:
                     return None
                 phase, phase_step = schedule[i]
-                step, last = (i + 1) * cfg.threshold_every, i == len(schedule) - 1
+                step, last = (i + 1) * cfg.block_steps, i == len(schedule) - 1
                 t0 = time.time()
                 state, metrics, first_bad = self._blocks[phase](state, hp, self.data)
                 metrics = jax.tree_util.tree_map(np.asarray, metrics)  # waits for the block
-                steps_timed += cfg.threshold_every
+                steps_timed += cfg.block_steps
                 self.step_reached = step
                 self._log_block(logs, metrics, step, phase, time.time() - t0)
-                self._check_finite(metrics, step - cfg.threshold_every + 1 + np.asarray(first_bad),
+                self._check_finite(metrics, step - cfg.block_steps + 1 + np.asarray(first_bad),
                                    ckpt.latest_step())
                 if self._evaluates(phase, phase_step, last):
                     last_eval = self.evaluate(state, step)
@@ -359,7 +359,7 @@ class Run:
             for lane in range(self.lanes.size):
                 row = {k: float(v[lane]) for k, v in metrics.items()}
                 row.update(step=step, phase=phase, lane=lane, seed=self.lanes.seeds[lane],
-                           steps_per_s=self.cfg.threshold_every / dt)
+                           steps_per_s=self.cfg.block_steps / dt)
                 logs.write("metrics", row, tb_prefix=f"train/lane{lane}")
 
     def _log_eval(self, logs, res: dict, step: int) -> None:
@@ -392,13 +392,13 @@ class Run:
             post["rew"] = f"{float(np.mean(last_eval['normalized_reward'])):.2f}"
             post["cost"] = f"{float(np.mean(last_eval['normalized_cost'])):.2f}"
         bar.set_postfix(post, refresh=False)
-        bar.update(self.cfg.threshold_every)
+        bar.update(self.cfg.block_steps)
 
     def _finish(self, state, last_eval, wall: float, steps_timed: int, resume_step: int,
                 logs) -> dict:
         """The final evaluation (if the last block had none), the policy, results and plots."""
         if last_eval is None and self.evaluator is not None:  # resumed after the last block
-            last_eval = self.evaluate(state, len(self.schedule) * self.cfg.threshold_every)
+            last_eval = self.evaluate(state, len(self.schedule) * self.cfg.block_steps)
         self.save_policy(state)
         results = self.results(state, last_eval, wall, steps_timed, resume_step)
         self.dir.write_results(results)

@@ -30,11 +30,11 @@ def fit_blocks_to_steps(overrides: dict, preset: str) -> None:
     if steps is None or steps < 1:
         return
     preset_values = PRESETS[resolve_preset(preset)[0]]
-    block = overrides.get("threshold_every") or preset_values["threshold_every"]
-    if steps % block == 0 or "threshold_every" in overrides:
+    block = overrides.get("block_steps") or preset_values["block_steps"]
+    if steps % block == 0 or "block_steps" in overrides:
         return
     block = math.gcd(steps, block)
-    overrides["threshold_every"] = block
+    overrides["block_steps"] = block
     for k in ("eval_every", "checkpoint_every"):
         if overrides.get(k) is None:
             period = min(preset_values[k], steps)

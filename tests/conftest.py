@@ -30,7 +30,7 @@ import pytest  # noqa: E402
 from r2pac_jax.config import make_config  # noqa: E402
 
 TINY = dict(steps=20, batch_size=32, hidden_dims=(16, 16), actor_hidden_dims=(16, 16),
-            threshold_every=10, eval_every=10, checkpoint_every=10, flow_steps=4,
+            block_steps=10, eval_every=10, checkpoint_every=10, flow_steps=4,
             num_candidates=4, threshold_subset=256, eval_episodes=2, seeds=2,
             # the OSRL-ported baselines' networks
             a_hidden_dims=(16, 16), c_hidden_dims=(16, 16), vae_hidden=16,
@@ -124,7 +124,7 @@ def reach_avoid_data(tmp_path_factory):
 
 # The tiny r2pac run of the CLI's bad-input and fault tests: TINY's values as --set options.
 TINY_ARGV = ["--set", "steps=20", "--set", "batch_size=32", "--set", "hidden_dims=16,16",
-             "--set", "threshold_every=10", "--set", "checkpoint_every=10", "--set",
+             "--set", "block_steps=10", "--set", "checkpoint_every=10", "--set",
              "flow_steps=4", "--set", "num_candidates=4", "--set", "threshold_subset=256",
              "--set", "actor_hidden_dims=16,16", "--eval-episodes", "2", "--eval-every", "10",
              "--seeds", "2", "--no-progress"]

@@ -100,7 +100,7 @@ def _linear_policy_dataset(n_episodes=20, length=50, obs_dim=6, act_dim=2, seed=
 
 def test_mlp_cloner_imitates_a_deterministic_policy(task):
     ds, w = _linear_policy_dataset()
-    cfg = make_config(task, "bc-all-mlp", "quick", dict(steps=1500, threshold_every=500,
+    cfg = make_config(task, "bc-all-mlp", "quick", dict(steps=1500, block_steps=500,
                                                         eval_every=500, checkpoint_every=500))
     data = make_data(cfg, task, ds)
     train = jax.jit(make_train(cfg, data, task.obs_dim, task.act_dim))
@@ -247,8 +247,8 @@ def test_a_sweep_marks_a_diverged_lane_and_the_others_finish(task, reach_avoid_d
     assert "diverged" not in ok or not ok["diverged"]
     assert all(x is not None for x in ok["normalized_reward"]["per_seed"])
     assert [d["seed"] for d in bad["diverged"]] == [0, 1]
-    # the huge penalty overflows within the first block (threshold_every steps)
-    assert all(1 <= d["step"] <= cfg.threshold_every for d in bad["diverged"])
+    # the huge penalty overflows within the first block (block_steps steps)
+    assert all(1 <= d["step"] <= cfg.block_steps for d in bad["diverged"])
     assert bad["normalized_reward"]["mean"] is None and bad["safe"] is False
     assert bad["normalized_cost"]["per_seed"] == [None, None]
     assert any(re.search(r"diverged at step \d+ \(non-finite", m) for m in msgs)
@@ -275,7 +275,7 @@ def test_a_block_names_the_first_non_finite_step():
         return s.replace(n=n), dict(loss=jnp.where(n >= hp["bad_from"], jnp.nan, 1.0),
                                     ok=jnp.ones(3))
 
-    agent = types.SimpleNamespace(cfg=types.SimpleNamespace(threshold_every=8),
+    agent = types.SimpleNamespace(cfg=types.SimpleNamespace(block_steps=8),
                                   begin_block=lambda s, hp, d: s, sample=lambda d, k: None,
                                   update=update)
     block = jax.jit(make_block(agent, "joint", first_bad=True))

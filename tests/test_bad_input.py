@@ -290,7 +290,7 @@ def test_file_size_limit_in_a_subprocess_keeps_the_checkpoints_and_resumes(place
 
     out = places["t"] / "fsize"
     sets = ["--set", "steps=600", "--set", "batch_size=32", "--set", "hidden_dims=16,16",
-            "--set", "threshold_every=5", "--set", "checkpoint_every=50", "--set",
+            "--set", "block_steps=5", "--set", "checkpoint_every=50", "--set",
             "flow_steps=4", "--set", "num_candidates=4", "--set", "threshold_subset=256",
             "--set", "actor_hidden_dims=16,16", "--eval-episodes", "2", "--eval-every", "300",
             "--seeds", "2", "--no-progress"]

@@ -302,7 +302,7 @@ def test_a_finished_cdt_run_loads_as_a_policy_with_memory(reach_avoid_data, tmp_
     from r2pac_jax.loop import Run
 
     task = get_task("ReachAvoid")
-    cfg = tiny_config("cdt", steps=10, eval_every=10, checkpoint_every=10, threshold_every=10)
+    cfg = tiny_config("cdt", steps=10, eval_every=10, checkpoint_every=10, block_steps=10)
     res = Run(cfg, task, reach_avoid_data, tmp_path / "run", Lanes.build(cfg, [0]),
               progress=False, log=lambda m: None).run()
     assert np.isfinite(res["normalized_reward"]["mean"])

@@ -61,7 +61,7 @@ def test_bad_inputs_have_clear_errors():
         make_config("ReachAvoid", overrides={"selection": "best"})
     with pytest.raises(ConfigError, match="unknown preset 'fast'"):
         make_config("ReachAvoid", preset="fast")
-    with pytest.raises(ConfigError, match="must be a multiple of threshold_every"):
+    with pytest.raises(ConfigError, match="must be a multiple of block_steps"):
         make_config("ReachAvoid", overrides={"steps": 750})
 
 
@@ -79,10 +79,27 @@ def test_cli_steps_shorter_than_the_block_fit_the_block():
     over = dict(steps=200)
     fit_blocks_to_steps(over, "quick")
     cfg = make_config("ReachAvoid", "r2pac", "quick", over)  # would raise without the fit
-    assert (cfg.steps, cfg.threshold_every, cfg.eval_every, cfg.checkpoint_every) == (
+    assert (cfg.steps, cfg.block_steps, cfg.eval_every, cfg.checkpoint_every) == (
         200, 100, 200, 200)
-    explicit = dict(steps=200, threshold_every=500)
+    explicit = dict(steps=200, block_steps=500)
     fit_blocks_to_steps(explicit, "quick")
-    assert explicit == dict(steps=200, threshold_every=500)  # the user's own value is kept
-    with pytest.raises(ConfigError, match="must be a multiple of threshold_every"):
+    assert explicit == dict(steps=200, block_steps=500)  # the user's own value is kept
+    with pytest.raises(ConfigError, match="must be a multiple of block_steps"):
         make_config("ReachAvoid", "r2pac", "quick", explicit)
+
+
+def test_the_block_key_of_its_old_name():
+    # a run's config.json written before the rename is read as the new key ...
+    import json
+
+    from r2pac_jax.config import Config, refuse_user_key
+
+    cfg = make_config("ReachAvoid", overrides={"block_steps": 250, "steps": 1000})
+    old = json.loads(cfg.to_json())
+    old["threshold_every"] = old.pop("block_steps")
+    assert Config.from_dict(old) == cfg
+    # ... while a user who writes the old name is told the new one
+    with pytest.raises(ConfigError, match="threshold_every is now called block_steps"):
+        make_config("ReachAvoid", overrides={"threshold_every": 250})
+    with pytest.raises(ConfigError, match="--set threshold_every=...: .* block_steps=..."):
+        refuse_user_key("threshold_every", "--set")

@@ -67,7 +67,7 @@ def test_fast_check_writes_its_file_and_names_what_failed(tmp_path, capsys):
 def test_imitability_trains_the_three_cloners(tmp_path, reach_avoid_data):
     path = tmp_path / "ra.hdf5"
     write_dsrl(path, reach_avoid_data, attrs={"task": "ReachAvoid"})
-    tiny = dict(steps=20, batch_size=32, hidden_dims=(16, 16), threshold_every=10,
+    tiny = dict(steps=20, batch_size=32, hidden_dims=(16, 16), block_steps=10,
                 eval_every=10, checkpoint_every=10, flow_steps=4, eval_episodes=2)
     res = checks.check_file(path, seeds=(100, 101), overrides=tiny, log=lambda m: None)
     imi = res["imitability"]
@@ -91,7 +91,7 @@ def test_a_file_without_safe_episodes_fails_the_safe_cloners_by_name(tmp_path):
     path = tmp_path / "unsafe.hdf5"
     write_dsrl(path, _episodes([10.0, 20.0, 30.0, 39.0], [3, 5, 6, 9]),
                attrs={"task": "ReachAvoid"})  # kappa 2: none safe
-    tiny = dict(steps=10, batch_size=32, hidden_dims=(16,), threshold_every=10, eval_every=10,
+    tiny = dict(steps=10, batch_size=32, hidden_dims=(16,), block_steps=10, eval_every=10,
                 checkpoint_every=10, eval_episodes=2)
     res = checks.check_file(path, seeds=(100,), overrides=tiny, log=lambda m: None)
     imi = res["imitability"]

@@ -247,7 +247,7 @@ def _default_sigint():
 
 # The cheapest algorithm to compile: what is tested is the CLI and the loop, shared by all.
 MLP = ["--algo", "bc-all-mlp", "--set", "batch_size=32", "--set", "hidden_dims=16,16",
-       "--set", "threshold_every=10", "--eval-episodes", "2", "--seeds", "2", "--no-progress",
+       "--set", "block_steps=10", "--eval-episodes", "2", "--seeds", "2", "--no-progress",
        "--baselines", "none"]
 
 

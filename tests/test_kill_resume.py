@@ -10,7 +10,7 @@ import chex
 import pytest
 
 SETS = ["steps=200", "batch_size=32", "hidden_dims=16,16", "actor_hidden_dims=16,16",
-        "threshold_every=10", "checkpoint_every=10", "flow_steps=4", "num_candidates=4",
+        "block_steps=10", "checkpoint_every=10", "flow_steps=4", "num_candidates=4",
         "threshold_subset=256"]
 
 

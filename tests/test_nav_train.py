@@ -53,7 +53,7 @@ def test_train_cli_on_car_goal2(data_dir, tmp_path):
             "--seeds", "1", "--baselines", "none", "--eval-episodes", "2", "--out", str(out),
             "--no-progress",
             # the quick preset's compiled block is 500 steps; 200 steps need a smaller block
-            "--set", "threshold_every=100"]
+            "--set", "block_steps=100"]
     assert main(argv) == 0
     res = json.loads((out / "results.json").read_text())
     # evaluated on our CarGoal2 environment: two full episodes of 1000 steps

@@ -23,9 +23,9 @@ def test_requested_algorithm_refuses_what_a_baseline_drops_with_a_note():
 
 def test_steps_the_block_does_not_divide_shrink_the_block_unless_set():
     cfg = plan("ReachAvoid", "r2pac", "quick", dict(steps=750))
-    assert (cfg.threshold_every, cfg.eval_every, cfg.checkpoint_every) == (250, 750, 750)
-    with pytest.raises(ConfigError, match="multiple of threshold_every"):
-        plan("ReachAvoid", "r2pac", "quick", dict(steps=750, threshold_every=500))
+    assert (cfg.block_steps, cfg.eval_every, cfg.checkpoint_every) == (250, 750, 750)
+    with pytest.raises(ConfigError, match="multiple of block_steps"):
+        plan("ReachAvoid", "r2pac", "quick", dict(steps=750, block_steps=500))
 
 
 def test_a_task_without_an_environment_evaluates_nothing_unless_asked(monkeypatch):
@@ -55,4 +55,4 @@ def test_a_sweep_plans_its_groups_as_train_plans_a_run(tmp_path):
     """))
     s = sw.load_sweep(p)
     (cfg,) = s.configs.values()
-    assert (cfg.steps, cfg.threshold_every, cfg.seeds) == (750, 250, 2)
+    assert (cfg.steps, cfg.block_steps, cfg.seeds) == (750, 250, 2)

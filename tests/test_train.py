@@ -122,7 +122,7 @@ def test_a_restart_before_the_first_checkpoint_starts_the_logs_afresh(reach_avoi
                                                                      tmp_path):
     # blocks of 10 steps, a checkpoint only at the end: an attempt stopped after two blocks
     # leaves log rows but nothing to resume from; the restart must not log those steps twice
-    cfg = tiny_config(steps=20, threshold_every=10, eval_every=10, checkpoint_every=40)
+    cfg = tiny_config(steps=20, block_steps=10, eval_every=10, checkpoint_every=40)
     part = Run(cfg, task, reach_avoid_data, tmp_path, Lanes.build(cfg, [0]), progress=False,
                log=lambda m: None)
     assert part.run(stop_after=2) is None
@@ -143,7 +143,7 @@ def test_a_restart_before_the_first_checkpoint_starts_the_logs_afresh(reach_avoi
 def test_cli_end_to_end_and_load_policy(data_dir, tmp_path, capsys):
     out = tmp_path / "run"
     sets = ["steps=20", "batch_size=32", "hidden_dims=16,16", "actor_hidden_dims=16,16",
-            "threshold_every=10", "checkpoint_every=10", "flow_steps=4", "num_candidates=4",
+            "block_steps=10", "checkpoint_every=10", "flow_steps=4", "num_candidates=4",
             "threshold_subset=256"]
     argv = ["--task", "ReachAvoid", "--preset", "quick", "--seeds", "2", "--eval-episodes", "3",
             "--eval-every", "10", "--out", str(out), "--no-progress", "--baselines",

@@ -329,7 +329,7 @@ def test_train_cli_evaluates_a_velocity_task(tmp_path):
            "none", "--eval-episodes", "2", "--physics", "mujoco", "--out", str(out),
            "--no-progress",
            # the quick preset's compiled block is 500 steps; 200 steps need a smaller block
-           "--set", "threshold_every=100", "--set", "eval_every=200",
+           "--set", "block_steps=100", "--set", "eval_every=200",
            "--set", "checkpoint_every=200"]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1500,
                           env=dict(os.environ, R2PAC_NO_TENSORBOARD="1"))
