@@ -22,15 +22,14 @@ import numpy as np
 from r2pac_jax.agents import make_agent
 from r2pac_jax.config import Config, default_hparams
 from r2pac_jax.data.dsrl import Dataset
-from r2pac_jax.errors import R2pacError
+from r2pac_jax.divergence import MODES, TrainingDiverged, check_finite, evaluate_lanes
 from r2pac_jax.io import sigint_deferred
 from r2pac_jax.lanes import Lanes, place
+from r2pac_jax.progress import RunProgress
 from r2pac_jax.run_dir import RunDirectory
 from r2pac_jax.tasks import TaskSpec
 
-
-class TrainingDiverged(R2pacError, RuntimeError):
-    """A block produced non-finite metrics; the last finite checkpoint is kept."""
+__all__ = ["Run", "TrainingDiverged", "compiled", "make_block", "make_data", "make_train"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -164,7 +163,9 @@ def check_run(cfg: Config, task: TaskSpec, ds: Dataset) -> None:
 
 
 class Run:
-    """Trains all lanes of one config on one dataset, with logs, evaluation and checkpoints."""
+    """Trains all lanes of one config on one dataset: blocks, with evaluations and checkpoints
+    between them. Its directory's files and rules are `run_dir.RunDirectory`'s, its logs and
+    progress bar `progress.RunProgress`'s, non-finite lanes `divergence`'s."""
 
     def __init__(self, cfg: Config, task: TaskSpec, ds: Dataset, out_dir, lanes: Lanes,
                  physics: str = "auto", progress: bool = True, log: Callable[[str], None] = print,
@@ -174,17 +175,14 @@ class Run:
         diagnostics: evaluation also logs the policy's diagnostics (R2PAC: its candidates'
         spread, the reward the choice gives up, V_c > l); they consume no random key, so every
         score is the same without them."""
-        if nonfinite not in ("stop", "mark"):
+        if nonfinite not in MODES:
             raise ValueError(f"nonfinite must be 'stop' or 'mark', got {nonfinite!r}")
-        self.nonfinite = nonfinite
+        self.cfg, self.task, self.lanes, self.nonfinite = cfg, task, lanes, nonfinite
+        self.physics, self.progress, self.log = physics, progress, log
         self.step_reached, self.last_checkpoint = 0, None  # what an interruption reports
         self.diverged: dict[int, dict] = {}  # lane -> {seed, step, terms}
-        self.cfg, self.task, self.lanes = cfg, task, lanes
         self.out = Path(out_dir)
-        self.dir = RunDirectory(self.out)  # its files and rules (run_dir.py)
-        self.physics = physics
-        self.progress = progress
-        self.log = log
+        self.dir = RunDirectory(self.out)
         self.dataset_label = dataset_label or ds.source
         self.dataset_path = next((Path(p) for p in (dataset_label, ds.source)
                                   if p and Path(p).is_file()), None)
@@ -201,7 +199,6 @@ class Run:
         if diagnostics and self.evaluator is not None and note:
             log(f"note: {note}")
 
-    # schedule ---------------------------------------------------------------------------------
     @property
     def schedule(self) -> list[tuple[str, int]]:
         """(phase, step within phase after the block) for every block of the run."""
@@ -213,56 +210,17 @@ class Run:
             return False
         return last or phase_step % self.cfg.eval_every == 0
 
-    def check_memory(self) -> None:
-        """Refuse, before anything is allocated, lanes that do not fit in memory (memory.py);
-        R2PAC_MEMORY_CHECK=off skips it."""
-        import os
-
-        from r2pac_jax.memory import block_need, check_fits
-
-        if os.environ.get("R2PAC_MEMORY_CHECK", "on").lower() in ("off", "0", "false"):
-            return
-
-        need = block_need(self._init, self._blocks, self.lanes.hp, self.data, self.lanes.size)
-        check_fits(need, f"{self.task.name} {self.cfg.algo}",
-                   "fewer lanes (--seeds, or fewer cells in a sweep) or a smaller batch "
-                   f"(--set batch_size=..., now {self.cfg.batch_size})", log=self.log)
-
     def init_state(self):
         return place(self._init(self.lanes.init_keys(), self.lanes.hp), self.lanes.size)
 
     def evaluate(self, state, step: int) -> dict:
-        """Every lane's evaluation; diverged lanes get NaN scores (their policies are not run:
-        a healthy lane's parameters stand in for them so that the batch keeps its shape)."""
+        """Every lane's evaluation at `step` (diverged lanes: NaN, not run)."""
         from r2pac_jax.evaluate import eval_keys
 
-        pp = self._eval_params(state, self.lanes.hp)
-        bad = sorted(self.diverged)
-        good = [i for i in range(self.lanes.size) if i not in self.diverged]
-        if bad and good:
-            idx = np.array([good[0] if i in self.diverged else i for i in range(self.lanes.size)])
-            pp = jax.tree_util.tree_map(lambda x: x[idx], pp)
-        if bad and not good:
-            shape = (self.lanes.size, self.cfg.eval_episodes)
-            res = {k: np.full(shape, np.nan) for k in ("returns", "costs", "lengths",
-                                                         "terminals")}
-            res.update({k: np.full(shape[0], np.nan) for k in (
-                "normalized_reward", "normalized_cost", "mean_length", "terminal_share")})
-            res["diagnostics"] = {}
-            return res
-        res = dict(self.evaluator(pp, eval_keys(self.lanes.seeds, step)))
+        return evaluate_lanes(self.evaluator, self._eval_params(state, self.lanes.hp),
+                              eval_keys(self.lanes.seeds, step), self.diverged, self.lanes.size,
+                              self.cfg.eval_episodes)
 
-        def blank(a):
-            a = np.array(a, dtype=float)
-            a[bad] = np.nan
-            return a
-
-        if bad:
-            res = {k: ({n: blank(x) for n, x in v.items()} if k == "diagnostics" else blank(v))
-                   for k, v in res.items()}
-        return res
-
-    # main loop ---------------------------------------------------------------------------------
     def run(self, resume: bool = False, stop_after: Optional[int] = None) -> Optional[dict]:
         """Train to the end (or stop after `stop_after` blocks, as an interruption would, and
         return None); with `resume`, continue from the latest checkpoint in the run directory.
@@ -275,15 +233,12 @@ class Run:
         self.dir.check_same_run(self.cfg, self.lanes, self.dataset_info, self.physics)
 
     def _run(self, resume: bool, stop_after: Optional[int]) -> Optional[dict]:
-        from r2pac_jax.metrics_log import MetricsLog
-
-        cfg = self.cfg
+        cfg, schedule = self.cfg, self.schedule
         ckpt, state, done_blocks, resume_step = self._start(resume)
-        logs = MetricsLog(self.out, resume_step=resume_step)
+        shown = RunProgress(self.out, self.lanes, cfg.block_steps, self.agent.progress_metrics,
+                            resume_step, self.progress, len(schedule) * cfg.block_steps,
+                            done_blocks * cfg.block_steps, f"{self.task.name} {cfg.algo}")
         hp = place(self.lanes.hp, self.lanes.size)
-        schedule = self.schedule
-        bar = self._progress_bar(len(schedule) * cfg.block_steps,
-                                 done_blocks * cfg.block_steps)
         last_eval, t_start, steps_timed = None, time.time(), 0
         try:
             for i in range(done_blocks, len(schedule)):
@@ -296,24 +251,21 @@ class Run:
                 metrics = jax.tree_util.tree_map(np.asarray, metrics)  # waits for the block
                 steps_timed += cfg.block_steps
                 self.step_reached = step
-                self._log_block(logs, metrics, step, phase, time.time() - t0)
-                self._check_finite(metrics, step - cfg.block_steps + 1 + np.asarray(first_bad),
-                                   ckpt.latest_step())
+                shown.block(metrics, step, phase, time.time() - t0)
+                check_finite(metrics, step - cfg.block_steps + 1 + np.asarray(first_bad),
+                             ckpt.latest_step(), self.diverged, self.nonfinite, self.lanes,
+                             f"{self.task.name} {cfg.algo}", self.log)
                 if self._evaluates(phase, phase_step, last):
                     last_eval = self.evaluate(state, step)
-                    self._log_eval(logs, last_eval, step)
+                    shown.evaluation(last_eval, step)
                 if last or step % cfg.checkpoint_every == 0:
                     self._save(ckpt, step, state, i + 1)
-                self._show(bar, phase, metrics, last_eval)
-            if bar is not None:
-                bar.close()
-                bar = None
+                shown.show(phase, metrics, last_eval)
+            shown.close_bar()
             return self._finish(state, last_eval, time.time() - t_start, steps_timed,
-                                resume_step, logs)
+                                resume_step, shown.logs)
         finally:
-            if bar is not None:
-                bar.close()
-            logs.close()
+            shown.close()
             ckpt.close()
 
     def _start(self, resume: bool):
@@ -322,6 +274,7 @@ class Run:
         checkpoint is restored, so an attempt that died before its first checkpoint leaves no
         rows behind (they would repeat the steps this run writes again)."""
         from r2pac_jax.checkpoint import Checkpointer
+        from r2pac_jax.memory import check_lanes_fit
 
         if resume:
             # settings are compared whether or not checkpoints remain: a run whose checkpoints
@@ -329,7 +282,9 @@ class Run:
             self.check_same_run()
         else:
             self.dir.refuse_existing_run()
-        self.check_memory()  # before anything of the run is allocated or created
+        # before anything of the run is allocated or created
+        check_lanes_fit(self._init, self._blocks, self.lanes.hp, self.data, self.lanes.size,
+                        f"{self.task.name} {self.cfg.algo}", self.cfg.batch_size, self.log)
         self.out.mkdir(parents=True, exist_ok=True)
         ckpt = Checkpointer(self.out / "checkpoints")
         state, done_blocks, resume_step = self.init_state(), 0, 0
@@ -345,120 +300,29 @@ class Run:
                                 self.dataset_label, self.physics)
         return ckpt, state, done_blocks, resume_step
 
-    def _progress_bar(self, total: int, initial: int):
-        if not self.progress:
-            return None
-        from tqdm import tqdm
-
-        return tqdm(total=total, initial=initial, unit="step", dynamic_ncols=True,
-                    desc=f"{self.task.name} {self.cfg.algo}", smoothing=0.1)
-
-    def _log_block(self, logs, metrics: dict, step: int, phase: str, dt: float) -> None:
-        """One metrics row per lane; a block's rows are logged whole (Ctrl-C waits)."""
-        with sigint_deferred():
-            for lane in range(self.lanes.size):
-                row = {k: float(v[lane]) for k, v in metrics.items()}
-                row.update(step=step, phase=phase, lane=lane, seed=self.lanes.seeds[lane],
-                           steps_per_s=self.cfg.block_steps / dt)
-                logs.write("metrics", row, tb_prefix=f"train/lane{lane}")
-
-    def _log_eval(self, logs, res: dict, step: int) -> None:
-        for lane in range(self.lanes.size):
-            logs.write("eval", dict(
-                step=step, lane=lane, seed=self.lanes.seeds[lane],
-                normalized_reward=float(res["normalized_reward"][lane]),
-                normalized_cost=float(res["normalized_cost"][lane]),
-                mean_return=float(res["returns"][lane].mean()),
-                mean_cost=float(res["costs"][lane].mean()),
-                mean_length=float(res["mean_length"][lane]),
-                terminal_share=float(res["terminal_share"][lane]),
-                **{k: float(v[lane]) for k, v in res["diagnostics"].items()}),
-                tb_prefix=f"eval/lane{lane}")
-
     def _save(self, ckpt, step: int, state, blocks_done: int) -> None:
         with sigint_deferred():  # Ctrl-C waits for the save to finish
             ckpt.save(step, state, {"blocks_done": blocks_done, "step": step,
                                     "diverged": {str(k): v for k, v in self.diverged.items()}})
             self.last_checkpoint = step
 
-    def _show(self, bar, phase: str, metrics: dict, last_eval: Optional[dict]) -> None:
-        if bar is None:
-            return
-        post = {"phase": phase}
-        for label, name in self.agent.progress_metrics.items():
-            if name in metrics:
-                post[label] = f"{float(np.mean(metrics[name])):.3g}"
-        if last_eval is not None:
-            post["rew"] = f"{float(np.mean(last_eval['normalized_reward'])):.2f}"
-            post["cost"] = f"{float(np.mean(last_eval['normalized_cost'])):.2f}"
-        bar.set_postfix(post, refresh=False)
-        bar.update(self.cfg.block_steps)
-
     def _finish(self, state, last_eval, wall: float, steps_timed: int, resume_step: int,
                 logs) -> dict:
         """The final evaluation (if the last block had none), the policy, results and plots."""
+        from r2pac_jax.results import run_results
+
         if last_eval is None and self.evaluator is not None:  # resumed after the last block
             last_eval = self.evaluate(state, len(self.schedule) * self.cfg.block_steps)
-        self.save_policy(state)
-        results = self.results(state, last_eval, wall, steps_timed, resume_step)
-        self.dir.write_results(results)
-        self.plot(logs)
-        return results
-
-    def _check_finite(self, metrics: dict, bad_step: np.ndarray, last_good: Optional[int]) -> None:
-        """bad_step [L]: the first non-finite step of each lane in the block (run steps)."""
-        bad = {k: [int(x) for x in np.flatnonzero(~np.isfinite(v)) if int(x) not in
-                   self.diverged] for k, v in metrics.items()}
-        bad = {k: v for k, v in bad.items() if v}
-        if bad and self.nonfinite == "mark":
-            for lane in sorted({ln for v in bad.values() for ln in v}):
-                terms = sorted(k for k, v in bad.items() if lane in v)
-                step = int(bad_step[lane])
-                self.diverged[lane] = dict(seed=self.lanes.seeds[lane], step=step, terms=terms)
-                self.log(f"lane {lane} (seed {self.lanes.seeds[lane]}, cell "
-                         f"{self.lanes.cell_hparams[self.lanes.cells[lane]]}) diverged at step "
-                         f"{step} (non-finite {', '.join(terms)}); it is marked and the other "
-                         "lanes go on")
-            return
-        if bad:
-            lanes = sorted({lane for v in bad.values() for lane in v})
-            seeds = [self.lanes.seeds[i] for i in lanes]
-            kept = (f"the last checkpoint (step {last_good}) is kept" if last_good is not None
-                    else "no checkpoint was written")
-            first = int(min(bad_step[i] for i in lanes))
-            raise TrainingDiverged(
-                f"{self.task.name} {self.cfg.algo}: non-finite {', '.join(sorted(bad))} first at "
-                f"step {first} (lanes {lanes}, seeds {seeds}); training stopped and {kept}. "
-                "Lower the learning rate (--set lr=...) or check the dataset for non-finite "
-                "values")
-
-    def save_policy(self, state) -> None:
-        """The final policy parameters of every lane (what `load_policy` reads)."""
         self.dir.save_policy(self.cfg.total_steps, self._policy_params(state, self.lanes.hp),
                              {"task": self.task.name, "algo": self.cfg.algo,
                               "lanes": self.lanes.size, "obs_dim": self.task.obs_dim,
                               "act_dim": self.task.act_dim})
-
-    def results(self, state, ev: Optional[dict], wall: float, steps: int,
-                resumed_from_step: int = 0) -> dict:
-        from r2pac_jax.results import run_results
-
-        out = run_results(self.cfg, self.task.name, self.lanes, self.agent.summary(state), ev,
-                          wall, steps, self.dataset_label, self.physics, self.diverged,
-                          resumed_from_step)
-        if self.evaluator is not None:  # the simulator that scored it (bullet and MJX scores
-            # of a Bullet task, say, are not interchangeable)
-            out["eval_backend"] = getattr(self.evaluator.env, "backend", "jax")
-        # what the cell stands on: the device that trained it and its file's RL budget (a
-        # table names rows trained elsewhere or on a cut budget)
-        from r2pac_jax.data.factory import data_budget
-        from r2pac_jax.machine import describe, training_device
-
-        out["trained_on"] = training_device()
-        out["machine"] = describe()
-        out["data_budget"] = data_budget(self.dataset_path) if self.dataset_path else None
-        return out
-
-    def plot(self, logs) -> None:
+        results = run_results(
+            self.cfg, self.task.name, self.lanes, self.agent.summary(state), last_eval, wall,
+            steps_timed, self.dataset_label, self.physics, self.diverged, resume_step,
+            eval_backend=(getattr(self.evaluator.env, "backend", "jax")
+                          if self.evaluator is not None else None),
+            dataset_path=self.dataset_path, provenance=True)
+        self.dir.write_results(results)
         self.dir.plot(logs, f"{self.task.name} {self.cfg.algo}", self.agent.plot_metrics)
-
+        return results

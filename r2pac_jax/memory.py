@@ -184,3 +184,16 @@ def check_fits(need: Need, what: str, fix: str, log=print,
     if need.total > WARN_SHARE * free:
         log(f"warning: {detail}: close to the limit; evaluation and other processes need "
             "memory too")
+
+
+def check_lanes_fit(init, blocks: dict, hp, data, lanes: int, what: str, batch_size: int,
+                    log=print) -> None:
+    """Refuse, before anything is allocated, `lanes` lanes of a run that do not fit in memory
+    (`block_need`, `check_fits`); R2PAC_MEMORY_CHECK=off skips it."""
+    import os
+
+    if os.environ.get("R2PAC_MEMORY_CHECK", "on").lower() in ("off", "0", "false"):
+        return
+    check_fits(block_need(init, blocks, hp, data, lanes), what,
+               "fewer lanes (--seeds, or fewer cells in a sweep) or a smaller batch "
+               f"(--set batch_size=..., now {batch_size})", log=log)

@@ -29,10 +29,16 @@ def _nan_to_none(a) -> list:
 
 def run_results(cfg: Config, task_name: str, lanes: Lanes, summary: dict, ev: Optional[dict],
                 wall: float, steps: int, dataset: str, physics: str,
-                diverged: Optional[dict] = None, resumed_from_step: int = 0) -> dict:
+                diverged: Optional[dict] = None, resumed_from_step: int = 0,
+                eval_backend: Optional[str] = None, dataset_path=None,
+                provenance: bool = False) -> dict:
     """summary: the agent's per-lane scalars ({name: [L]}); ev: LaneEvaluator's output or None.
     wall, steps: this call's seconds and training steps; a resumed call starts at
     `resumed_from_step`, recorded so that its wall_time_s reads as that part of the run only.
+    `provenance`: also what the cell stands on (the simulator that scored it, `eval_backend`:
+    bullet and MJX scores of a Bullet task are not interchangeable; the device that trained it;
+    the machine; the RL budget of the file at `dataset_path`), so a table names rows trained
+    elsewhere or on a cut budget.
 
     One entry per cell in `cells`; with a single cell its entries also sit at the top level."""
     out = dict(task=task_name, algo=cfg.algo, preset=cfg.preset, dataset=dataset,
@@ -66,4 +72,13 @@ def run_results(cfg: Config, task_name: str, lanes: Lanes, summary: dict, ev: Op
         out["cells"].append(cell)
     if len(out["cells"]) == 1:
         out.update({k: v for k, v in out["cells"][0].items() if k != "hparams"})
+    if provenance:
+        from r2pac_jax.data.factory import data_budget
+        from r2pac_jax.machine import describe, training_device
+
+        if eval_backend is not None:
+            out["eval_backend"] = eval_backend
+        out["trained_on"] = training_device()
+        out["machine"] = describe()
+        out["data_budget"] = data_budget(dataset_path) if dataset_path else None
     return out
