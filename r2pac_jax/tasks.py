@@ -156,7 +156,7 @@ def set_collection(name: str, collection: CollectionSpec) -> None:
 # The demonstration task (pure JAX, envs/reach_avoid.py). Its constants are part of the task's
 # design, fixed before any training: R_max is the return of the noiseless straight-line
 # full-speed scripted controller (unsafe: it crosses the hazard), R_min is standing still;
-# tests/test_reach_avoid.py recomputes both from the environment.
+# tests/data/test_reach_avoid.py recomputes both from the environment.
 register(TaskSpec(
     name="ReachAvoid", family="demo", dsrl_id=None, gym_id=None,
     episode_len=80, obs_dim=6, act_dim=2, r_min=0.0, r_max=40.0,

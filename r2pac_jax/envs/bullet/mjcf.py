@@ -4,7 +4,7 @@ bodies, not from the files' nominal values: pybullet computes a link's inertia f
 box of its collision shape grown by a 0.04 m margin (the Ant's legs, the Drone's box and rotors)
 and its mass from density 1000 (the Ant: 182 kg in all, not ant.xml's density 5). Every number
 below was read with `getDynamicsInfo` / `getJointInfo` on the original's bodies as the bullet
-backend loads them; `tests/test_bullet_mujoco.py` checks them against pybullet when it is
+backend loads them; `tests/envs/test_bullet_mujoco.py` checks them against pybullet when it is
 installed.
 
 Where MuJoCo has no equivalent of Bullet's model (each gap is measured in benchmarks/FIDELITY.md,
@@ -238,7 +238,7 @@ def has_model(robot_name: str) -> bool:
 # MJX's contact slots in the Circle worlds (its `max_contact_points`, per condim group; each
 # robot's contacts form one group): the Run world's slots (the robot against the ground: a
 # sphere 1, the Drone's box 4, the Car's hull, boxes and wheel cylinders 24, the Ant's torso and
-# leg capsules 25; tests/test_bullet_mujoco.py counts them) plus room for the walls: a robot
+# leg capsules 25; tests/envs/test_bullet_mujoco.py counts them) plus room for the walls: a robot
 # meets at most two walls at once (the octagon's corners), the Ball at one point each, the
 # others' geoms at up to 4 points each. With every robot geom x wall pair, MJX would carry 9,
 # 216, 36 and 225 slots.

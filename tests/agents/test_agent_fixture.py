@@ -13,7 +13,7 @@ import jax
 import numpy as np
 import pytest
 
-HERE = Path(__file__).parent / "fixtures"
+HERE = Path(__file__).parents[1] / "fixtures"
 sys.path.insert(0, str(HERE))
 
 import make_agent_fixture as fx  # noqa: E402

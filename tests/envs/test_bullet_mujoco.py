@@ -15,7 +15,7 @@ from r2pac_jax.envs.bullet.mujoco_env import euler_from_quat, quat_from_euler
 from r2pac_jax.tasks import get_task
 
 pb = pytest.importorskip("pybullet")
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "fidelity_bullet"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks" / "fidelity_bullet"))
 import mujoco_gap  # noqa: E402
 
 
@@ -215,7 +215,7 @@ def test_contact_cap_benchmark_refuses_a_world_without_a_cap(tmp_path):
     import subprocess
     import sys
 
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "mjx_contact_cap.py"
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "mjx_contact_cap.py"
     r = subprocess.run([sys.executable, str(script), "--tasks", "BallRun",
                         "--out", str(tmp_path / "x.jsonl")], capture_output=True, text=True)
     assert r.returncode != 0

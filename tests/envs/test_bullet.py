@@ -17,7 +17,7 @@ from r2pac_jax.envs.bullet import make_env  # noqa: E402
 from r2pac_jax.envs.bullet.engine import StaleStateError  # noqa: E402
 from r2pac_jax.tasks import get_task  # noqa: E402
 
-FIX = Path(__file__).parent / "fixtures" / "bullet"
+FIX = Path(__file__).parents[1] / "fixtures" / "bullet"
 PORTED = ["BallRun", "BallCircle", "CarRun", "CarCircle", "DroneRun", "DroneCircle", "AntRun",
           "AntCircle"]
 

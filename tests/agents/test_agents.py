@@ -226,7 +226,7 @@ def test_non_finite_training_stops_with_the_last_checkpoint_kept(task, reach_avo
 def test_configs_of_runs_made_before_the_protocol_still_load(algo):
     from pathlib import Path
 
-    old = json.loads((Path(__file__).parent / "fixtures" / f"config_a022372_{algo}.json")
+    old = json.loads((Path(__file__).parents[1] / "fixtures" / f"config_a022372_{algo}.json")
                      .read_text())
     cfg = Config.from_dict(old)
     over = dict(seeds=2) if algo == "bc-safe" else dict(seeds=2, quantile_alpha=0.8)

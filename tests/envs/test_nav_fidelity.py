@@ -3,7 +3,7 @@
 Marker `reference`: needs the original's virtualenv. Build it with
 ../shared/reference/install-safety-gymnasium.sh (it lands in .venv-safety-gymnasium at the repo
 root) or point R2PAC_SG_VENV at an existing one; without it these tests skip. Run them with
-`python -m pytest -m reference tests/test_nav_fidelity.py` (about 30 min on 2 cores the first
+`python -m pytest -m reference tests/envs/test_nav_fidelity.py` (about 30 min on 2 cores the first
 time, when the original's rollouts are made and cached; MJX compiling is most of the rest).
 
 They run the harness of benchmarks/fidelity_nav/compare.py (C MuJoCo: 3 x 400-step episodes and

@@ -31,7 +31,7 @@ def _write(tmp_path, body, name="s.toml"):
 
 
 def test_shipped_sweep_files_parse_and_group():
-    root = Path(__file__).resolve().parents[1] / "sweeps"
+    root = Path(__file__).resolve().parents[2] / "sweeps"
     s = sw.load_sweep(root / "alpha_h.toml")
     assert len(s.cells) == 20 and len(s.groups) == 4  # alpha is vmapped, h splits groups
     assert all(len(g.cells) == 5 for g in s.groups)
@@ -139,7 +139,7 @@ def test_lanes_shard_over_local_devices(tmp_path, data_dir):
         print("OK", res["total_steps"])
     """)
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
-               PYTHONPATH=str(Path(__file__).parent))
+               PYTHONPATH=str(Path(__file__).parents[1]))
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          timeout=300)
     assert "DEVICES 2" in out.stdout, out.stderr[-2000:]
@@ -157,7 +157,7 @@ def test_ray_launcher_on_a_local_instance(tmp_path, data_dir):
     ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False,
              runtime_env={"env_vars": {"R2PAC_DATA_DIR": os.environ["R2PAC_DATA_DIR"],
                                        "R2PAC_NO_TENSORBOARD": "1",
-                                       "PYTHONPATH": str(Path(__file__).resolve().parents[1])}})
+                                       "PYTHONPATH": str(Path(__file__).resolve().parents[2])}})
     try:
         out = sw.run_sweep(p, tmp_path / "ray", launcher="ray", log=lambda m: None)
     finally:

@@ -5,7 +5,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-SCRIPT = Path(__file__).resolve().parents[1] / "experiments" / "data_factory" / "log_windows.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "experiments" / "data_factory" / "log_windows.py"
 
 
 def test_windows_average_the_updates_that_finished_episodes(tmp_path):

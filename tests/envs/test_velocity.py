@@ -23,7 +23,7 @@ from r2pac_jax.envs.physics import BackendUnavailableError, MujocoEnv, make_phys
 from r2pac_jax.envs.velocity import ROBOTS, make_task
 from r2pac_jax.tasks import UnknownTaskError, get_task
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TASKS = ["AntVelocity", "HalfCheetahVelocity", "SwimmerVelocity", "HopperVelocity",
          "Walker2dVelocity"]
 # (obs, act, nq, nv, dt) of gymnasium's v4 envs
