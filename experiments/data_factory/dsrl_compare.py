@@ -6,7 +6,7 @@ recipe, written into GENERATION.md between its `dsrl-compare` markers (and print
 DSRL's side is what it published: the trajectory count and cost cap of each file (its file
 names, e.g. SafetyCarGoal1Gymnasium-v0-120-1671), the normalisation constants R_min / R_max
 (`dsrl/infos.py`) and the RL budget (`scripts/train_trpol_v0.py`: epochs x 10k steps): the
-registry holds them (`tasks.py`). Our side is read from each file's card as committed in
+registry holds them (`r2pac_jax/tasks/`). Our side is read from each file's card as committed in
 `results_v2/TASK/` (the file the Table-1 manifest pins when there is one), so the table needs no
 HDF5 file on this machine.
 """

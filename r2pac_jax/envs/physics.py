@@ -24,7 +24,7 @@ jitted and vmapped over the batch, so C MuJoCo and MJX share every line of task 
 """
 from __future__ import annotations
 
-from typing import Any, Optional
+from typing import Optional
 
 import jax
 import jax.numpy as jnp

@@ -1,7 +1,6 @@
 """The Table-1 command (r2pac_jax/table.py) and the table's marking rules (report.results_table)."""
 import json
 
-import pytest
 
 from r2pac_jax.report import results_table
 from r2pac_jax.table import data_version, main
