@@ -186,7 +186,8 @@ def make_config(task: str | TaskSpec, algo: str = "r2pac", preset: str = "quick"
                                   cost_scale=spec.cost_scale)
     values.update(mod.task_values(spec))
     values.update(PRESETS[preset])
-    values.update(mod.PRESETS.get(preset, {}))
+    own_preset = mod.PRESETS.get(preset, {})
+    values.update(own_preset(spec) if callable(own_preset) else own_preset)
     values.update(mod.VARIANTS[algo])
     given = {k: v for k, v in (overrides or {}).items() if v is not None}
     for k, v in given.items():

@@ -36,7 +36,9 @@ TINY = dict(steps=20, batch_size=32, hidden_dims=(16, 16), actor_hidden_dims=(16
             a_hidden_dims=(16, 16), c_hidden_dims=(16, 16), vae_hidden=16,
             critic_hidden_dims=(16, 16), actor_hidden=16, actor_blocks=1, critic_batch=16,
             # CDT's transformer
-            embedding_dim=16, num_heads=2, num_layers=1)
+            embedding_dim=16, num_heads=2, num_layers=1,
+            # TREBI's U-Net and planner
+            horizon=4, unet_dim=8, unet_mults=(1, 4), diffusion_steps=3, plans=2)
 
 
 ROOT = Path(__file__).resolve().parents[1]

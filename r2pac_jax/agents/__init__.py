@@ -15,7 +15,8 @@ from typing import Any, Callable
 from r2pac_jax.errors import ConfigError
 
 # module names under r2pac_jax.agents, in the order `--algo`'s help lists them
-MODULES = ("r2pac", "bc_flow", "bc_mlp", "cpq", "bcq_lag", "coptidice", "fisor", "cdt")
+MODULES = ("r2pac", "bc_flow", "bc_mlp", "cpq", "bcq_lag", "coptidice", "fisor", "cdt",
+           "trebi")
 
 
 def _variants() -> dict[str, str]:
@@ -35,7 +36,7 @@ class AlgorithmSpec:
     module that misses a name, or holds one of the wrong kind, is refused naming it).
 
     CONFIG: its config dataclass (the generic keys plus its own); PRESETS: {preset: {key:
-    value}}; VARIANTS: {--algo name: {key: value}}, the names it serves as config switches;
+    value}, or a function of the task spec giving them (TREBI: its steps by family)}; VARIANTS: {--algo name: {key: value}}, the names it serves as config switches;
     FIXED / FIXED_WHY: generic keys it pins, and why; HPARAMS: its vmappable scalars; Agent: the
     class with init / update / act (`agents/base.py`); check_hparams(values), phases(config),
     task_values(task spec) and validate(config): its checks and per-task defaults."""
