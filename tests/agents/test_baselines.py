@@ -1,4 +1,4 @@
-"""Every ported baseline (CPQ, BCQ-L, COptiDICE, CDT from OSRL; FISOR from its code) through the generic loop: seeds vmapped
+"""Every baseline (CPQ, BCQ-L, COptiDICE, CDT from OSRL; FISOR from its code; TREBI) through the generic loop: seeds vmapped
 equal separate runs, and a killed run resumed equals an uninterrupted one bitwise."""
 import chex
 import jax
@@ -13,7 +13,7 @@ from r2pac_jax.lanes import Lanes
 from r2pac_jax.loop import Run, make_data, make_train
 from r2pac_jax.tasks import get_task
 
-BASELINES = ["cpq", "bcq-lag", "coptidice", "fisor", "cdt"]
+BASELINES = ["cpq", "bcq-lag", "coptidice", "fisor", "cdt", "trebi"]
 
 
 # the default suite runs the cheapest one; the others (25-50 s of compilation each) are slow

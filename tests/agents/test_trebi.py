@@ -1,0 +1,96 @@
+"""TREBI's pieces: the planner's inpainting, guidance and choice, the budget recurrence, its
+value targets and its bad input."""
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import tiny_config
+
+from r2pac_jax.agents import make_agent
+from r2pac_jax.agents.trebi import (choose_plan, cosine_schedule, discounted_to_go,
+                                    guided_plan)
+from r2pac_jax.config import ConfigError, default_hparams, make_config
+
+A, O, H, P = 2, 3, 4, 5
+
+
+def _plan(value_c, budget, scale, key=0, t_stopgrad=0):
+    state = jnp.array([[0.5, -1.0, 2.0], [1.0, 0.0, -0.5]])
+    return guided_plan(lambda x, t: x, lambda x, t: jnp.zeros(x.shape[0]), value_c, state,
+                       jnp.asarray(budget, jnp.float32), jax.random.PRNGKey(key),
+                       cosine_schedule(5), A, H, P, 2, scale, t_stopgrad, 5.0), state
+
+
+def _action_cost(x, t):  # a hand-made cost value: the squared size of the first action
+    return (x[:, 0, :A] ** 2).sum(-1)
+
+
+def test_plans_keep_the_current_state_and_have_their_shapes():
+    (x, y_r, y_c, chosen), state = _plan(_action_cost, [1.0, 1.0], 0.1)
+    chex.assert_shape(x, (2, P, H, A + O))
+    chex.assert_shape((y_r, y_c), (2, P))
+    chex.assert_shape(chosen, (2,))
+    np.testing.assert_array_equal(np.asarray(x[:, :, 0, A:]),
+                                  np.broadcast_to(np.asarray(state)[:, None], (2, P, O)))
+
+
+def test_cost_guidance_lowers_the_chosen_plans_predicted_cost():
+    # a budget every plan exceeds: the guide pushes each plan down the cost value's gradient
+    free, _ = _plan(_action_cost, [0.05, 0.05], 0.0)
+    guided, _ = _plan(_action_cost, [0.05, 0.05], 0.02)
+    pick = lambda out: np.take_along_axis(np.asarray(out[2]), np.asarray(out[3])[:, None], 1)  # noqa: E731
+    assert np.all(pick(guided) < pick(free))
+    # and no guidance at all below t_stopgrad: with t_stopgrad past the last step, none happens
+    off, _ = _plan(_action_cost, [0.05, 0.05], 0.02, t_stopgrad=99)
+    np.testing.assert_allclose(np.asarray(off[0]), np.asarray(free[0]), rtol=0, atol=0)
+
+
+def test_the_choice_within_budget_and_without():
+    y_r = jnp.array([[3.0, 9.0, 5.0], [3.0, 9.0, 5.0]])
+    y_c = jnp.array([[1.0, 4.0, 2.0], [7.0, 8.0, 6.0]])
+    # episode 0: plans 0 and 2 within 2.5, the better reward wins (not plan 1's 9 at cost 4);
+    # episode 1: none within, the lowest cost wins
+    np.testing.assert_array_equal(np.asarray(choose_plan(y_r, y_c, jnp.array([2.5, 2.5]))),
+                                  [2, 2])
+    np.testing.assert_array_equal(np.asarray(choose_plan(y_r, y_c, jnp.array([4.0, 0.0]))),
+                                  [1, 2])
+
+
+def test_the_budget_falls_by_each_steps_cost(reach_avoid_data):
+    cfg = tiny_config("trebi")
+    agent = make_agent(cfg, 6, 2)
+    hp = default_hparams(cfg)
+    assert float(hp["budget"]) == 2.0  # ReachAvoid's kappa
+    pp = agent.policy_params(jax.jit(agent.init)(jax.random.PRNGKey(0), hp), hp)
+    obs = jnp.asarray(reach_avoid_data.observations[:3])
+    mem = agent.memory_init(pp, obs)
+    a, mem = jax.jit(agent.act_memory)(pp, obs, jax.random.PRNGKey(1), mem)
+    chex.assert_shape(a, (3, 2))
+    mem = agent.observe(pp, mem, jnp.ones(3), jnp.array([0.0, 1.5, 3.0]))
+    mem = agent.observe(pp, mem, jnp.ones(3), jnp.array([1.0, 0.0, 0.0]))
+    np.testing.assert_allclose(np.asarray(mem.budget), [1.0, 0.5, -1.0])
+
+
+def test_value_targets_are_discounted_to_the_episode_end():
+    v = np.array([1.0, 2.0, 3.0, 10.0, 20.0])
+    out = discounted_to_go(v, np.array([0, 3]), np.array([3, 2]), 0.5)
+    np.testing.assert_allclose(out, [1 + 0.5 * 2 + 0.25 * 3, 2 + 0.5 * 3, 3, 10 + 0.5 * 20, 20])
+
+
+def test_presets_and_bad_input():
+    paper = make_config("BallRun", "trebi", "paper")
+    assert (paper.steps, paper.horizon, paper.diffusion_steps, paper.plans, paper.guide_steps,
+            paper.unet_mults) == (100_000, 32, 20, 64, 2, (1, 2, 4, 8))
+    assert make_config("CarGoal2", "trebi", "paper").steps == 200_000
+    quick = make_config("BallRun", "trebi", "quick")
+    assert (quick.horizon, quick.diffusion_steps, quick.plans, quick.guide_steps) == (16, 5, 8, 1)
+    with pytest.raises(ConfigError, match="horizon 128 is longer than an episode"):
+        make_config("BallRun", "trebi", overrides={"horizon": 128})
+    with pytest.raises(ConfigError, match="budget must be > 0"):
+        make_config("BallRun", "trebi", overrides={"budget": 0.0})
+    for k in ("guide_steps", "plans", "diffusion_steps"):
+        with pytest.raises(ConfigError, match=f"{k} must be >= 1"):
+            make_config("BallRun", "trebi", overrides={k: 0})
+    with pytest.raises(ConfigError, match="horizon 10 must be a multiple of 4"):
+        make_config("BallRun", "trebi", overrides={"horizon": 10})
