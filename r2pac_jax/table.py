@@ -39,7 +39,7 @@ DEFAULT_ALGOS = "bc-all-mlp,cpq,coptidice,bcq-lag,r2pac"
 # Column order of a table whose columns are found, not named: the paper's Table 1 (baselines,
 # then R2PAC); algorithms it lacks go in between, in the registry's order.
 _BASELINE_ORDER = ("bc-all", "bc-safe", "bc-all-mlp", "bc-safe-mlp", "cpq", "coptidice", "bcq-lag",
-                   "cdt", "fisor")
+                   "cdt", "trebi", "fisor")
 
 
 def column_order(algos) -> list[str]:

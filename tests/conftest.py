@@ -37,8 +37,9 @@ TINY = dict(steps=20, batch_size=32, hidden_dims=(16, 16), actor_hidden_dims=(16
             critic_hidden_dims=(16, 16), actor_hidden=16, actor_blocks=1, critic_batch=16,
             # CDT's transformer
             embedding_dim=16, num_heads=2, num_layers=1,
-            # TREBI's U-Net and planner
-            horizon=4, unet_dim=8, unet_mults=(1, 4), diffusion_steps=3, plans=2)
+            # TREBI's U-Net and planner (at least 2 channels in each of GroupNorm's 8 groups:
+            # with one, a conv's bias is cancelled exactly and Adam amplifies its noise)
+            horizon=4, unet_dim=16, unet_mults=(1, 4), diffusion_steps=3, plans=2)
 
 
 ROOT = Path(__file__).resolve().parents[1]

