@@ -16,6 +16,7 @@ import optax
 from r2pac_jax.agents import flow
 from r2pac_jax.agents.base import (ActorState, ChunkAlgorithm, actor_only, check_act, check_obs,
                                    check_positive, check_sizes, no_hparams, no_task_values)
+from r2pac_jax.agents.spec import AlgorithmSpec
 from r2pac_jax.data.chunks import Batch
 from r2pac_jax.errors import ConfigError
 from r2pac_jax.nets import NULL_LABEL, VelocityField
@@ -103,3 +104,9 @@ class Agent(ChunkAlgorithm):
                                   self.chunk_size, self.cfg.flow_steps)
         return check_act(obs, cand[:, 0].reshape(B, self.h, self.act_dim)[:, 0], self.obs_dim,
                          self.act_dim)
+
+
+SPEC = AlgorithmSpec(CONFIG=CONFIG, PRESETS=PRESETS, VARIANTS=VARIANTS, FIXED=FIXED,
+                     FIXED_WHY=FIXED_WHY, HPARAMS=HPARAMS, Agent=Agent,
+                     check_hparams=check_hparams, phases=phases, task_values=task_values,
+                     validate=validate)

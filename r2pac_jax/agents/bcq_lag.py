@@ -31,6 +31,7 @@ from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, c
                                    check_sizes, cost_limit_task_values, optimizer_step, osrl_presets,
                                    soft_update)
 from r2pac_jax.agents.constraints import pid_multiplier, q_threshold
+from r2pac_jax.agents.spec import AlgorithmSpec
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch
 from r2pac_jax.errors import ConfigError
 from r2pac_jax.nets import VAE, TorchMLP, TorchQEnsemble, vae_loss, vae_sample_latent
@@ -226,3 +227,9 @@ class Agent(TransitionAlgorithm):
         check_obs(obs, self.obs_dim)
         a = self._perturb(pp["actor"], obs, self._decoded(pp["vae"], obs, key))
         return check_act(obs, a, self.obs_dim, self.act_dim)
+
+
+SPEC = AlgorithmSpec(CONFIG=CONFIG, PRESETS=PRESETS, VARIANTS=VARIANTS, FIXED=FIXED,
+                     FIXED_WHY=FIXED_WHY, HPARAMS=HPARAMS, Agent=Agent,
+                     check_hparams=check_hparams, phases=phases, task_values=task_values,
+                     validate=validate)

@@ -52,6 +52,7 @@ from r2pac_jax.agents.base import (ChunkAlgorithm, actor_only, check_act, check_
                                    check_counts, check_dataset_sizes, check_lane_hparams,
                                    check_obs, check_positive)
 from r2pac_jax.agents.decision_transformer import DecisionTransformer
+from r2pac_jax.agents.spec import AlgorithmSpec
 from r2pac_jax.data import sequences
 from r2pac_jax.data.sequences import SequenceBatch, SequenceData
 from r2pac_jax.errors import ConfigError
@@ -405,3 +406,9 @@ class Agent(ChunkAlgorithm):
 
     def summary(self, state: CDTState) -> dict:
         return {"target_return": state.target_return}
+
+
+SPEC = AlgorithmSpec(CONFIG=CONFIG, PRESETS=PRESETS, VARIANTS=VARIANTS, FIXED=FIXED,
+                     FIXED_WHY=FIXED_WHY, HPARAMS=HPARAMS, Agent=Agent,
+                     check_hparams=check_hparams, phases=phases, task_values=task_values,
+                     validate=validate)

@@ -33,6 +33,7 @@ from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, c
                                    check_counts, check_lane_hparams, check_obs, check_positive,
                                    check_sizes, cost_limit_task_values, osrl_presets)
 from r2pac_jax.agents.constraints import q_threshold
+from r2pac_jax.agents.spec import AlgorithmSpec
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch, TransitionData
 from r2pac_jax.nets import SquashedGaussianActor, TorchQEnsemble
 from r2pac_jax.ranges import check_range
@@ -250,3 +251,9 @@ class Agent(TransitionAlgorithm):
         check_obs(obs, self.obs_dim)
         mu, _ = self.actor_net.apply(pp["actor"], obs)
         return check_act(obs, jnp.tanh(mu), self.obs_dim, self.act_dim)
+
+
+SPEC = AlgorithmSpec(CONFIG=CONFIG, PRESETS=PRESETS, VARIANTS=VARIANTS, FIXED=FIXED,
+                     FIXED_WHY=FIXED_WHY, HPARAMS=HPARAMS, Agent=Agent,
+                     check_hparams=check_hparams, phases=phases, task_values=task_values,
+                     validate=validate)

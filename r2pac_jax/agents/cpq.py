@@ -36,6 +36,7 @@ from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, c
                                    check_sizes, cost_limit_task_values, optimizer_step, osrl_presets,
                                    soft_update)
 from r2pac_jax.agents.constraints import q_threshold
+from r2pac_jax.agents.spec import AlgorithmSpec
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch
 from r2pac_jax.nets import (VAE, SquashedGaussianActor, TorchQEnsemble, squashed_sample, vae_kl,
                            vae_loss)
@@ -230,3 +231,9 @@ class Agent(TransitionAlgorithm):
         check_obs(obs, self.obs_dim)
         mu, _ = self.actor_net.apply(pp["actor"], obs)
         return check_act(obs, jnp.tanh(mu), self.obs_dim, self.act_dim)
+
+
+SPEC = AlgorithmSpec(CONFIG=CONFIG, PRESETS=PRESETS, VARIANTS=VARIANTS, FIXED=FIXED,
+                     FIXED_WHY=FIXED_WHY, HPARAMS=HPARAMS, Agent=Agent,
+                     check_hparams=check_hparams, phases=phases, task_values=task_values,
+                     validate=validate)

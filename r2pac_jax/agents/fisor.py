@@ -36,6 +36,7 @@ from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, c
                                    check_counts, check_lane_hparams, check_obs, check_positive,
                                    check_sizes, optimizer_step, soft_update)
 from r2pac_jax.agents.critics import expectile_loss, reversed_expectile_loss
+from r2pac_jax.agents.spec import AlgorithmSpec
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch
 from r2pac_jax.errors import ConfigError
 from r2pac_jax.nets import NoiseModel, StateValueNet, XavierQEnsemble
@@ -264,3 +265,9 @@ class Agent(TransitionAlgorithm):
         best = jnp.argmin(qh, axis=1)
         a = cand.reshape(bsz, n, self.act_dim)[jnp.arange(bsz), best]
         return check_act(obs, a, self.obs_dim, self.act_dim)
+
+
+SPEC = AlgorithmSpec(CONFIG=CONFIG, PRESETS=PRESETS, VARIANTS=VARIANTS, FIXED=FIXED,
+                     FIXED_WHY=FIXED_WHY, HPARAMS=HPARAMS, Agent=Agent,
+                     check_hparams=check_hparams, phases=phases, task_values=task_values,
+                     validate=validate)

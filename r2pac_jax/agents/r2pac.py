@@ -23,6 +23,7 @@ from r2pac_jax.agents.base import (ChunkAlgorithm, check_act, check_obs, check_p
                                    check_lane_hparams, check_sizes, optimizer_step,
                                    soft_update)
 from r2pac_jax.agents.selection import select_candidate
+from r2pac_jax.agents.spec import AlgorithmSpec
 from r2pac_jax.data.chunks import Batch, ChunkedData
 from r2pac_jax.errors import ConfigError
 from r2pac_jax.nets import NULL_LABEL, GaussianActor, QEnsemble, ValueNet, VelocityField
@@ -438,3 +439,9 @@ class Agent(ChunkAlgorithm):
         action = check_act(obs, chosen.reshape(B, self.h, self.act_dim)[:, 0], self.obs_dim,
                            self.act_dim)
         return (action, stats) if info else action
+
+
+SPEC = AlgorithmSpec(CONFIG=CONFIG, PRESETS=PRESETS, VARIANTS=VARIANTS, FIXED=FIXED,
+                     FIXED_WHY=FIXED_WHY, HPARAMS=HPARAMS, Agent=Agent,
+                     check_hparams=check_hparams, phases=phases, task_values=task_values,
+                     validate=validate)

@@ -34,6 +34,7 @@ from flax import struct
 
 from r2pac_jax.agents.base import (ChunkAlgorithm, check_act, check_counts, check_dataset_sizes,
                                    check_lane_hparams, check_obs, check_positive)
+from r2pac_jax.agents.spec import AlgorithmSpec
 from r2pac_jax.agents.temporal_unet import TemporalUnet, ValueFunction
 from r2pac_jax.data import sequences
 from r2pac_jax.errors import ConfigError
@@ -412,3 +413,9 @@ class Agent(ChunkAlgorithm):
 
     def summary(self, state: TREBIState) -> dict:
         return {}
+
+
+SPEC = AlgorithmSpec(CONFIG=CONFIG, PRESETS=PRESETS, VARIANTS=VARIANTS, FIXED=FIXED,
+                     FIXED_WHY=FIXED_WHY, HPARAMS=HPARAMS, Agent=Agent,
+                     check_hparams=check_hparams, phases=phases, task_values=task_values,
+                     validate=validate)

@@ -16,7 +16,7 @@ from r2pac_jax.agents import algo_module, algo_names
 ALL_ALGOS = algo_names()
 # the algorithms of the pre-protocol fixture train bitwise as they did (test_agent_fixture.py);
 # this test covers the others except the OSRL ports, which test_baselines.py trains
-NEW_ALGOS = [a for a in ALL_ALGOS if algo_module(a).__name__.rsplit(".", 1)[1]
+NEW_ALGOS = [a for a in ALL_ALGOS if algo_module(a).Agent.__module__.rsplit(".", 1)[1]
              not in ("r2pac", "bc_flow", "cpq", "bcq_lag", "coptidice", "fisor")]
 
 
