@@ -32,8 +32,9 @@ import numpy as np
 import optax
 from flax import struct
 
-from r2pac_jax.agents.base import (ChunkAlgorithm, check_act, check_counts, check_dataset_sizes,
-                                   check_lane_hparams, check_obs, check_positive)
+from r2pac_jax.agents.base import (ChunkAlgorithm, actor_only, check_act, check_counts,
+                                   check_dataset_sizes, check_lane_hparams, check_obs,
+                                   check_positive)
 from r2pac_jax.agents.spec import AlgorithmSpec
 from r2pac_jax.agents.temporal_unet import TemporalUnet, ValueFunction
 from r2pac_jax.data import sequences
@@ -89,8 +90,7 @@ FIXED_WHY = {"chunk_len": "plans whole windows and executes one action of each p
 HPARAMS = ("budget",)
 
 
-def phases(agent_cfg) -> tuple[str, ...]:
-    return ("actor",)
+phases = actor_only
 
 
 def task_values(spec) -> dict:
@@ -239,18 +239,6 @@ class TREBIBatch(NamedTuple):
     value_c: jax.Array  # [B]
 
 
-def discounted_to_go(values: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
-                     discount: float) -> np.ndarray:
-    """[N]: sum_k discount^k values[i + k] to the end of row i's episode."""
-    out = np.zeros(len(values), np.float64)
-    for s, n in zip(starts, lengths):
-        acc = 0.0
-        for i in range(s + n - 1, s - 1, -1):
-            acc = values[i] + discount * acc
-            out[i] = acc
-    return out
-
-
 @struct.dataclass
 class TREBIState:
     params: dict  # {"model", "value_r", "value_c"}
@@ -294,9 +282,9 @@ class Agent(ChunkAlgorithm):
         std = lambda a: np.maximum(a.std(0), 1e-6)  # noqa: E731
         return TREBIData(
             seq=seq,
-            reward_to_go=f32(discounted_to_go(ds.rewards * self.cfg.reward_scale, starts,
-                                              lengths, g)),
-            cost_to_go=f32(discounted_to_go(ds.costs * self.cfg.cost_scale, starts, lengths, g)),
+            reward_to_go=f32(sequences.to_go(ds.rewards * self.cfg.reward_scale, starts,
+                                             lengths, g)),
+            cost_to_go=f32(sequences.to_go(ds.costs * self.cfg.cost_scale, starts, lengths, g)),
             obs_mean=f32(ds.observations.mean(0)), obs_std=f32(std(ds.observations)),
             act_mean=f32(ds.actions.mean(0)), act_std=f32(std(ds.actions)))
 

@@ -65,11 +65,19 @@ def episode_table(ds: Dataset) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     return starts, ends - starts + 1, ret, cost
 
 
-def to_go(values: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """Undiscounted sums from each row to its episode's end: [N] -> [N] (float64)."""
-    out = np.empty(values.shape[0], np.float64)
+def to_go(values: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
+          discount: float = 1.0) -> np.ndarray:
+    """sum_k discount^k values[i + k] from each row i to its episode's end: [N] -> [N]
+    (float64; rows outside the episodes 0)."""
+    out = np.zeros(values.shape[0], np.float64)
     for s, n in zip(starts, lengths):
-        out[s:s + n] = np.cumsum(values[s:s + n][::-1].astype(np.float64))[::-1]
+        if discount == 1.0:
+            out[s:s + n] = np.cumsum(values[s:s + n][::-1].astype(np.float64))[::-1]
+            continue
+        acc = 0.0
+        for i in range(s + n - 1, s - 1, -1):
+            acc = values[i] + discount * acc
+            out[i] = acc
     return out
 
 

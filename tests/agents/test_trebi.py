@@ -8,9 +8,9 @@ import pytest
 from conftest import tiny_config
 
 from r2pac_jax.agents import make_agent
-from r2pac_jax.agents.trebi import (choose_plan, cosine_schedule, discounted_to_go,
-                                    guided_plan)
+from r2pac_jax.agents.trebi import choose_plan, cosine_schedule, guided_plan
 from r2pac_jax.config import ConfigError, default_hparams, make_config
+from r2pac_jax.data.sequences import to_go
 
 A, O, H, P = 2, 3, 4, 5
 
@@ -74,8 +74,10 @@ def test_the_budget_falls_by_each_steps_cost(reach_avoid_data):
 
 def test_value_targets_are_discounted_to_the_episode_end():
     v = np.array([1.0, 2.0, 3.0, 10.0, 20.0])
-    out = discounted_to_go(v, np.array([0, 3]), np.array([3, 2]), 0.5)
+    out = to_go(v, np.array([0, 3]), np.array([3, 2]), 0.5)
     np.testing.assert_allclose(out, [1 + 0.5 * 2 + 0.25 * 3, 2 + 0.5 * 3, 3, 10 + 0.5 * 20, 20])
+    # undiscounted (CDT's returns-to-go) through the same function
+    np.testing.assert_allclose(to_go(v, np.array([0, 3]), np.array([3, 2])), [6, 5, 3, 30, 20])
 
 
 def test_presets_and_bad_input():
