@@ -16,7 +16,6 @@ import statistics
 import time
 
 import jax
-import jax.numpy as jnp
 
 from r2pac_jax.agents import make_agent
 from r2pac_jax.config import default_hparams, make_config

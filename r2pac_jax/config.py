@@ -46,6 +46,8 @@ class Config:
     eval_every: int = 5_000
     eval_episodes: int = 20
     checkpoint_every: int = 5_000
+    # the networks' matmuls: default | highest | bf16 (precision.py); losses and Adam stay f32
+    matmul_precision: str = "default"
     agent: Any = None  # the algorithm's config (agents/<module>.py)
 
     def __getattr__(self, name: str):
@@ -121,7 +123,7 @@ PRESETS: dict[str, dict[str, Any]] = {
                   block_steps=500),
 }
 
-CHOICES = {"data_filter": ("all", "safe")}
+CHOICES = {"data_filter": ("all", "safe"), "matmul_precision": ("default", "highest", "bf16")}
 
 
 def resolve_preset(preset: str) -> tuple[str, str]:

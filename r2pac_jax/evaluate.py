@@ -17,6 +17,7 @@ import numpy as np
 
 from r2pac_jax.envs.base import pow2_bucket, put_rows, take_rows
 from r2pac_jax.errors import R2pacError
+from r2pac_jax.precision import with_matmul_precision
 from r2pac_jax.tasks import TaskSpec, get_task
 
 
@@ -41,12 +42,17 @@ Policy = Union[Callable, MemoryPolicy, InfoPolicy]
 
 def policy_of(agent, diagnostics: bool = False) -> Policy:
     """What evaluation runs for an agent: its memory triple if it has one; with `diagnostics`,
-    its `act_info` where it has one; else `act`."""
+    its `act_info` where it has one; else `act` (each at the agent's `matmul_precision`)."""
+    mode = agent.cfg.matmul_precision
+
+    def at(fn):
+        return with_matmul_precision(fn, mode)
+
     if all(hasattr(agent, n) for n in ("memory_init", "act_memory", "observe")):
-        return MemoryPolicy(agent.memory_init, agent.act_memory, agent.observe)
+        return MemoryPolicy(at(agent.memory_init), at(agent.act_memory), at(agent.observe))
     if diagnostics and hasattr(agent, "act_info"):
-        return InfoPolicy(agent.act_info)
-    return agent.act
+        return InfoPolicy(at(agent.act_info))
+    return at(agent.act)
 
 
 class _Stepper(NamedTuple):

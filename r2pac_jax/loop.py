@@ -25,6 +25,7 @@ from r2pac_jax.data.dsrl import Dataset
 from r2pac_jax.divergence import MODES, TrainingDiverged, check_finite, evaluate_lanes
 from r2pac_jax.io import sigint_deferred
 from r2pac_jax.lanes import Lanes, place
+from r2pac_jax.precision import with_matmul_precision
 from r2pac_jax.progress import RunProgress
 from r2pac_jax.run_dir import RunDirectory
 from r2pac_jax.tasks import TaskSpec
@@ -69,7 +70,7 @@ def make_block(agent, phase: str, first_bad: bool = False) -> Callable:
                         for v in jax.tree_util.tree_leaves(metrics)]).all(0)
         return state, means, jnp.where(ok.all(), -1, jnp.argmin(ok))
 
-    return block
+    return with_matmul_precision(block, cfg.matmul_precision)
 
 
 def time_block(cfg: Config, task: TaskSpec, ds: Dataset, lanes: int, blocks: int = 5,

@@ -49,6 +49,7 @@ def load_policy(run_dir, lane: int = 0):
     memory` after each step (batched: obs [B, obs_dim], reward and cost [B]).
     """
     from r2pac_jax.agents import make_agent
+    from r2pac_jax.evaluate import MemoryPolicy, policy_of
     from r2pac_jax.tasks import get_task
 
     cfg, _ = read_run(run_dir)
@@ -59,14 +60,15 @@ def load_policy(run_dir, lane: int = 0):
     if not 0 <= lane < n:
         raise IndexError(f"lane {lane} out of range: the run has {n} lanes")
     pp = jax.tree_util.tree_map(lambda x: x[lane], pp)
-    if hasattr(agent, "memory_init"):
-        return _memory_policy(agent, pp, task)
+    policy = policy_of(agent)  # at the run's matmul_precision
+    if isinstance(policy, MemoryPolicy):
+        return _memory_policy(policy, pp, task)
 
     @jax.jit
     def act_jit(obs, key):
         obs = jnp.asarray(obs, jnp.float32)
         single = obs.ndim == 1
-        a = agent.act(pp, obs[None] if single else obs, key)
+        a = policy(pp, obs[None] if single else obs, key)
         return a[0] if single else a
 
     def act(obs, key):
@@ -87,12 +89,12 @@ def _check_obs(obs, task, ndims) -> None:
                          "observation vector")
 
 
-def _memory_policy(agent, pp, task):
-    """load_policy's form for agents with memory (batched observations only)."""
+def _memory_policy(policy, pp, task):
+    """load_policy's form for policies with memory (batched observations only)."""
 
-    step = jax.jit(lambda obs, key, memory: agent.act_memory(
+    step = jax.jit(lambda obs, key, memory: policy.act(
         pp, jnp.asarray(obs, jnp.float32), key, memory))
-    init = jax.jit(lambda obs: agent.memory_init(pp, jnp.asarray(obs, jnp.float32)))
+    init = jax.jit(lambda obs: policy.init(pp, jnp.asarray(obs, jnp.float32)))
 
     def act(obs, key, memory):
         _check_obs(obs, task, (2,))
@@ -103,6 +105,6 @@ def _memory_policy(agent, pp, task):
         return init(obs)
 
     act.init = init_memory
-    act.observe = jax.jit(lambda memory, reward, cost: agent.observe(
+    act.observe = jax.jit(lambda memory, reward, cost: policy.observe(
         pp, memory, jnp.asarray(reward, jnp.float32), jnp.asarray(cost, jnp.float32)))
     return act

@@ -29,7 +29,7 @@ _TYPE_WORDS = {bool: "true or false", int: "an integer", float: "a number",
                tuple: "comma-separated integers", str: "a string"}
 
 
-def _parse_set(items: Sequence[str], algos: Sequence[str] = ("r2pac",)) -> dict:
+def parse_set(items: Sequence[str], algos: Sequence[str] = ("r2pac",)) -> dict:
     """--set key=value items -> {key: typed value}; a key must belong to one of `algos`."""
     types: dict[str, type] = {}
     for a in algos:
@@ -166,7 +166,7 @@ def main(argv=None) -> int:
         # a folder the project did not write is refused before any data is made or loaded
         claim_directory(out, "run", legacy=is_legacy_run, check_only=True)
         # every config is checked before any data is generated or any training starts
-        sets = _parse_set(args.set, algos)
+        sets = parse_set(args.set, algos)
         main_only = {k: v for k, v in sets.items() if k in field_types(args.algo)}
         unknown_main = sorted(set(sets) - set(main_only))
         if unknown_main:

@@ -1,0 +1,52 @@
+"""benchmarks/efficiency.py: its FLOP counts agree with a hand count, its data have the task's
+shapes, and one algorithm's row is complete and self-consistent."""
+import json
+
+import jax
+import jax.numpy as jnp
+import pytest
+from conftest import load_script
+
+
+@pytest.fixture(scope="module")
+def eff():
+    return load_script("benchmarks/efficiency.py", "efficiency")
+
+
+def test_the_cost_analysis_matches_a_hand_count_of_a_relu_mlp(eff):
+    assert eff.relu_mlp_hand_count(2, [3, 4, 1]) == 2 * 2 * (12 + 4) + 2 * 5 + 2 * 4
+    row = eff.check_cost_analysis(batch=16, dims=(5, 32, 7))
+    assert row["xla_flops"] == row["hand_flops"]
+
+
+def test_a_loop_body_counts_once_so_steps_are_compiled_alone(eff):
+    w = jnp.ones((8, 8))
+    one = eff.flops_of(lambda x: x @ w, jnp.ones((4, 8)))
+    ten = eff.flops_of(lambda x: jax.lax.fori_loop(0, 10, lambda _, y: y @ w, x), jnp.ones((4, 8)))
+    assert one == 2 * 4 * 8 * 8 and ten < 2 * one  # why a block's figure is not divided
+
+
+def test_random_data_have_the_tasks_shapes_and_safe_and_unsafe_episodes(eff):
+    from r2pac_jax.tasks import get_task
+
+    task = get_task("ReachAvoid")
+    ds = eff.random_dataset(task, episodes=6)
+    assert ds.observations.shape == (6 * task.episode_len, task.obs_dim)
+    assert ds.actions.shape == (6 * task.episode_len, task.act_dim)
+    assert ds.timeouts.sum() == 6
+
+
+def test_one_row_per_phase_with_consistent_figures(eff, capsys, tmp_path):
+    out = tmp_path / "eff.jsonl"
+    eff.BLOCK_STEPS["quick"] = 4
+    assert eff.main(["--algos", "bc-all-mlp", "--presets", "quick", "--task", "ReachAvoid",
+                     "--blocks", "1", "--peak-size", "64", "--set", "batch_size=32",
+                     "--set", "hidden_dims=16,16", "--out", str(out)]) == 0
+    rows = [json.loads(x) for x in out.read_text().splitlines()]
+    assert [r["kind"] for r in rows] == ["check", "peak", "step"]
+    r = rows[-1]
+    assert r["width"] == 16 and r["batch"] == 32 and r["gflop_step"] > 0
+    assert r["achieved_gflops"] == pytest.approx(r["gflop_per_step"] * r["seed_steps_per_s"])
+    assert r["frac_of_peak"] == pytest.approx(r["achieved_gflops"] / r["matmul_gflops_peak"])
+    eff.main(["--table", str(out)])
+    assert "| bc-all-mlp | quick | actor |" in capsys.readouterr().out
