@@ -82,3 +82,21 @@ def test_file_mode_prints_the_path_alone(monkeypatch, capsys, tmp_path):
     assert mod.main(["--file", "HalfCheetahVelocity"]) == 0
     out = capsys.readouterr()
     assert out.out == f"{f}\n" and "warp" in out.err and "making it again" in out.err
+
+
+def test_precision_rule_is_two_float32_stds_without_a_floor():
+    from conftest import load_script
+
+    cmp = load_script("experiments/precision/compare.py", "precision_compare")
+
+    def res(r, rs, c, cs):
+        return dict(normalized_reward=dict(mean=r, std=rs, per_seed=[r] * 3),
+                    normalized_cost=dict(mean=c, std=cs, per_seed=[c] * 3))
+
+    rows = cmp.verdicts({"T": {"default": res(0.5, 0.1, 0.0, 0.0),
+                               "bf16": res(0.69, 0.3, 0.0, 0.0),
+                               "highest": res(0.71, 0.0, 0.01, 0.0)}})
+    got = {(r["mode"], r["metric"]): r["passed"] for r in rows}
+    assert got == {("default", "reward"): True, ("default", "cost"): True,
+                   ("bf16", "reward"): True, ("bf16", "cost"): True,
+                   ("highest", "reward"): False, ("highest", "cost"): False}
