@@ -96,3 +96,21 @@ def test_presets_and_bad_input():
             make_config("BallRun", "trebi", overrides={k: 0})
     with pytest.raises(ConfigError, match="horizon 10 must be a multiple of 4"):
         make_config("BallRun", "trebi", overrides={"horizon": 10})
+
+
+@pytest.mark.parametrize("kernel,stride,padding", [(5, 1, 2), (1, 1, 0), (3, 2, 1)])
+def test_the_unets_matmul_convolution_is_flaxs_convolution(kernel, stride, padding):
+    """temporal_unet.Conv (one matmul of shifted windows, for the CPU's speed) has nn.Conv's
+    parameters, initialisation and outputs."""
+    import flax.linen as nn
+
+    from r2pac_jax.agents.temporal_unet import Conv
+
+    x = jax.random.normal(jax.random.PRNGKey(0), (3, 8, 6))
+    ours = Conv(4, kernel, stride, padding)
+    flax_conv = nn.Conv(4, (kernel,), strides=(stride,), padding=padding)
+    p_ours, p_flax = ours.init(jax.random.PRNGKey(1), x), flax_conv.init(jax.random.PRNGKey(1), x)
+    for a, b in zip(jax.tree_util.tree_leaves(p_ours), jax.tree_util.tree_leaves(p_flax)):
+        np.testing.assert_array_equal(a, b)
+    p = jax.tree_util.tree_map(lambda a: a + 0.1, p_flax)  # a non-zero bias too
+    np.testing.assert_allclose(ours.apply(p, x), flax_conv.apply(p, x), rtol=1e-5, atol=1e-5)
