@@ -3,8 +3,9 @@
 #   OUT=runs/precision bash experiments/precision/run.sh      (a killed run continues)
 set -u
 out=${OUT:-runs/precision}
-for task in ${TASKS:-ReachAvoid HalfCheetahVelocity}; do
-  for mode in ${MODES:-default bf16 highest}; do
+# highest last: on the CPU it is bit-identical to default (tests/loop/test_precision.py)
+for mode in ${MODES:-default bf16 highest}; do
+  for task in ${TASKS:-ReachAvoid HalfCheetahVelocity}; do
     dir=$out/$task/$mode
     if [ -f "$dir/results.json" ]; then echo "== kept $task $mode"; continue; fi
     resume=""; [ -f "$dir/config.json" ] && resume="--resume"
