@@ -42,11 +42,17 @@ ALGOS = "r2pac,bc-all,bc-all-mlp,cpq,bcq-lag,coptidice,fisor,cdt,trebi"  # one p
 BLOCK_STEPS = {"quick": 50, "paper": 5}
 
 
-def flops_of(fn, *args) -> float:
-    """XLA's FLOP count of fn compiled for args (a loop body counts once)."""
+def cost_of(fn, *args) -> dict:
+    """XLA's cost analysis of fn compiled for args (a loop body counts once): flops,
+    transcendentals, bytes accessed."""
     cost = jax.jit(fn).lower(*args).compile().cost_analysis()
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost
-    return float(cost.get("flops", 0.0))
+    return {k: float(cost.get(k, 0.0)) for k in ("flops", "transcendentals", "bytes accessed")}
+
+
+def flops_of(fn, *args) -> float:
+    """XLA's FLOP count of fn compiled for args (a loop body counts once)."""
+    return cost_of(fn, *args)["flops"]
 
 
 def relu_mlp_hand_count(batch: int, dims: list[int]) -> int:
@@ -105,8 +111,8 @@ def random_dataset(task, episodes: int = 20, seed: int = 0):
         terminals=np.zeros(n, bool), timeouts=ends.reshape(n)), f"random {task.name}")
 
 
-def step_flops(agent, cfg, data, phase: str) -> tuple[float, float]:
-    """(FLOPs of one step of `phase`, FLOPs of the block's start) for one lane."""
+def step_cost(agent, cfg, data, phase: str) -> tuple[dict, float]:
+    """(cost_of one step of `phase`, FLOPs of the block's start) for one lane."""
     hp = default_hparams(cfg)
     state = agent.init(jax.random.PRNGKey(0), hp)
 
@@ -115,7 +121,7 @@ def step_flops(agent, cfg, data, phase: str) -> tuple[float, float]:
         return agent.update(s.replace(key=key), agent.sample(data, k_batch), hp, phase)
 
     start = flops_of(agent.begin_block, state, hp, data)
-    return flops_of(one, state, hp, data), start
+    return cost_of(one, state, hp, data), start
 
 
 def policy_flops(agent, cfg, batch: int = 64) -> float:
@@ -159,7 +165,8 @@ def measure(algo: str, preset: str, task, ds, lanes: int, blocks: int, sets: lis
     pol = policy_flops(agent, cfg)
     rows = []
     for phase in cfg.phases:
-        f_step, f_start = step_flops(agent, cfg, data, phase)
+        cost, f_start = step_cost(agent, cfg, data, phase)
+        f_step = cost["flops"]
         per_step = f_step + f_start / bs
         t = time_block(cfg, task, ds, lanes, blocks, phase)
         achieved = per_step * t["seed_steps_per_s"] / 1e9
@@ -167,7 +174,8 @@ def measure(algo: str, preset: str, task, ds, lanes: int, blocks: int, sets: lis
             kind="step", algo=algo, preset=preset, phase=phase, task=task.name, lanes=lanes,
             matmul_precision=cfg.matmul_precision, batch=cfg.batch_size, width=width,
             gflop_step=f_step / 1e9, gflop_block_start=f_start / 1e9, block_steps=bs,
-            gflop_per_step=per_step / 1e9, steps_per_s=t["steps_per_s"],
+            gflop_per_step=per_step / 1e9, mtranscendentals_step=cost["transcendentals"] / 1e6,
+            flop_per_byte=f_step / max(cost["bytes accessed"], 1.0), steps_per_s=t["steps_per_s"],
             seed_steps_per_s=t["seed_steps_per_s"], compile_s=t["compile_s"],
             achieved_gflops=achieved, matmul_gflops_at_size=at_size, matmul_gflops_peak=peak,
             frac_of_size=achieved / at_size, frac_of_peak=achieved / peak,
@@ -177,8 +185,8 @@ def measure(algo: str, preset: str, task, ds, lanes: int, blocks: int, sets: lis
 
 def table(lines: list[dict]) -> str:
     out = ["| algorithm | preset | phase | GFLOP/step | steps/s | achieved GFLOP/s | "
-           "of matmul at its size | of peak | policy MFLOP/env step |",
-           "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+           "of matmul at its size | of peak | FLOP/byte | M transc./step | policy MFLOP/env step |",
+           "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in lines:
         if r.get("kind") != "step":
             continue
@@ -195,7 +203,7 @@ def main(argv=None) -> int:
     ap.add_argument("--algos", default=ALGOS)
     ap.add_argument("--presets", default="quick,paper")
     ap.add_argument("--task", default="CarGoal2")
-    ap.add_argument("--lanes", type=int, default=1)
+    ap.add_argument("--lanes", default="1", help="comma-separated lane counts (seeds vmapped)")
     ap.add_argument("--blocks", type=int, default=3)
     ap.add_argument("--peak-size", type=int, default=2048)
     ap.add_argument("--set", action="append", default=[], help="config key=value, as train's --set")
@@ -219,9 +227,10 @@ def main(argv=None) -> int:
     for preset in args.presets.split(","):
         for algo in args.algos.split(","):
             try:
-                for row in measure(algo, preset, task, ds, args.lanes, args.blocks, args.set,
-                                   peak):
-                    emit(row)
+                for lanes in (int(x) for x in args.lanes.split(",")):
+                    for row in measure(algo, preset, task, ds, lanes, args.blocks, args.set,
+                                       peak):
+                        emit(row)
             except Exception as e:  # one algorithm's failure must not lose the others' rows
                 emit(dict(kind="error", algo=algo, preset=preset, error=repr(e)[:500]))
     return 0

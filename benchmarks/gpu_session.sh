@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # The GPU measurements of benchmarks/RESULTS.md, batched into few long calls on a lent machine.
 #
-#   bash benchmarks/gpu_session.sh SECTION OUTDIR      SECTION: train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed | table
+#   bash benchmarks/gpu_session.sh SECTION OUTDIR      SECTION: train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed | table | efficiency
 #
 # The GPU machine has jax/flax/optax/orbax/chex/h5py but no mujoco and no network: carry the
 # cp312 wheels in .whl/ (see benchmarks/RESULTS.md, "GPU figures") and they are installed
 # first. Every step has its own time limit so one slow step cannot take the others with it;
 # each step appends JSON lines to OUTDIR as it finishes.
 set -u
-section=${1:?section: train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed | table}
+section=${1:?section: train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed | table | efficiency}
 out=${2:?output directory}
 mkdir -p "$out"
 export PYTHONUNBUFFERED=1
@@ -96,5 +96,27 @@ case $section in
     (cd /tmp && tar czf "$out/table_cells.tar.gz" table_*/manifest.json table_*/*/*/results.json \
       table_*/*/*/config.json table_*/*/*/eval.jsonl table_*/*/*/metrics.jsonl)
     ;;
-  *) echo "unknown section $section (train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed | table)"; exit 2 ;;
+  efficiency)  # issue 56: FLOP efficiency at the paper preset, 1 and 4 lanes, default and bf16;
+    # then the Table-1 GPU-hour estimate from the measured 4-lane rates. BLOCKS / BS shrink it
+    # for a rehearsal on the CPU (EFF_PRESET=quick, tiny steps).
+    p=${EFF_PRESET:-paper}
+    step 230 efficiency python3 benchmarks/efficiency.py --presets "$p" --lanes 1,4 \
+      --algos r2pac,cpq,fisor --blocks "${BLOCKS:-3}" --out "$out/efficiency.jsonl"
+    step 150 efficiency python3 benchmarks/efficiency.py --presets "$p" --lanes 1,4 \
+      --algos r2pac,cpq,fisor --blocks "${BLOCKS:-3}" --set matmul_precision=bf16 \
+      --out "$out/efficiency.jsonl"
+    step 160 efficiency python3 benchmarks/efficiency.py --presets "$p" --lanes 4 \
+      --algos bc-all-mlp,coptidice,cdt,trebi --blocks "${BLOCKS:-3}" --out "$out/efficiency.jsonl"
+    python3 benchmarks/efficiency.py --table "$out/efficiency.jsonl" > "$out/efficiency.md"
+    # the paper's text lies beside the repository, which the GPU machine may not have: then run
+    # gpu_hours.py on the returned efficiency.jsonl at home
+    paper=${PAPER:-../shared/paper/r2pac-paper.txt}
+    if [ -f "$paper" ]; then
+      for prec in default bf16; do
+        python3 benchmarks/gpu_hours.py "$out/efficiency.jsonl" --precision $prec \
+          --paper "$paper" --out "$out/gpu_hours_$prec.md"
+      done
+    else echo "=== no $paper here: python benchmarks/gpu_hours.py OUT/efficiency.jsonl at home"; fi
+    ;;
+  *) echo "unknown section $section (train | env | alpha_h | quality_bar | ppolag | bullet_env | gen_speed | table | efficiency)"; exit 2 ;;
 esac
