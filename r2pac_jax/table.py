@@ -28,11 +28,26 @@ import csv
 import io
 import json
 import re
+import shlex
+import shutil
 import sys
 from pathlib import Path
 from typing import Optional
 
+from r2pac_jax.agents import algo_module, algo_names
+from r2pac_jax.config import ConfigError, resolve_preset
+from r2pac_jax.data import factory, load_task_dataset
+from r2pac_jax.data.dsrl import dsrl_dirs
 from r2pac_jax.errors import R2pacError
+from r2pac_jax.io import (atomic_write_json, atomic_write_text, claim_directory, marker_kind,
+                          writing)
+from r2pac_jax.planner import plan
+from r2pac_jax.report import SAFE_LIMIT, plot_table, results_table
+from r2pac_jax.run_dir import is_legacy_run
+from r2pac_jax.tasks import get_task
+
+# r2pac_jax.loop, .lanes and .train import JAX: they are imported where a cell is trained or
+# timed, so that `--help` and `--table-only` start without it.
 
 
 DEFAULT_ALGOS = "bc-all-mlp,cpq,coptidice,bcq-lag,r2pac"
@@ -44,8 +59,6 @@ _BASELINE_ORDER = ("bc-all", "bc-safe", "bc-all-mlp", "bc-safe-mlp", "cpq", "cop
 
 def column_order(algos) -> list[str]:
     """`algos` in the table's column order: the paper's baselines, other agents, R2PAC's."""
-    from r2pac_jax.agents import algo_names
-
     names = algo_names()
 
     def rank(a):
@@ -102,8 +115,6 @@ def build_parser() -> argparse.ArgumentParser:
 def _configs(task, algos, args):
     """Each algorithm's cell config on `task`: one evaluation, at the end (the table reports
     the final policy)."""
-    from r2pac_jax.planner import plan
-
     return {a: plan(task, a, args.preset, dict(seeds=args.seeds, steps=args.steps,
                                                eval_episodes=args.episodes if task.has_env else 0),
                     final_eval_only=True)
@@ -112,8 +123,6 @@ def _configs(task, algos, args):
 
 def _manifest(out: Path, args, datasets: dict) -> dict:
     """The identity of the table in DIR; refuse a DIR of another preset, seeds or data."""
-    from r2pac_jax.io import atomic_write_json
-
     want = dict(_identity(args), datasets=datasets)
     path = out / "manifest.json"
     if path.exists():
@@ -135,7 +144,6 @@ def _identity(args) -> dict:
 
 
 def _check_identity(have: dict, args, where: Path) -> None:
-    from r2pac_jax.config import ConfigError
 
     for k, v in _identity(args).items():
         if have.get(k) != v:
@@ -144,7 +152,6 @@ def _check_identity(have: dict, args, where: Path) -> None:
 
 
 def _check_same_data(have: dict, new: dict, where: Path, verb: str) -> None:
-    from r2pac_jax.config import ConfigError
 
     for t, d in new.items():
         old = have.get(t)
@@ -158,10 +165,6 @@ def _check_pinned_present(out: Path, tasks) -> None:
     """A task whose data `out` already pins must find that very file here before anything is
     loaded: a missing one would otherwise be generated anew (hours for the learned data), and
     the new file, made elsewhere or by other code, may not be the pinned bytes."""
-    from r2pac_jax.config import ConfigError
-    from r2pac_jax.data import factory
-    from r2pac_jax.data.dsrl import dsrl_dirs
-
     path = out / "manifest.json"
     if not path.exists():
         return
@@ -177,7 +180,6 @@ def _check_pinned_present(out: Path, tasks) -> None:
 
 
 def _check_one_version(datasets: dict) -> None:
-    from r2pac_jax.config import ConfigError
 
     versions = {d["version"] for d in datasets.values()}
     if len(versions) > 1:
@@ -196,10 +198,7 @@ def merge_from(out: Path, src: Path, args, log) -> int:
     OUT's manifest is read and rewritten here, at the merge, so two table directories merged
     into one OUT in turn both keep their tasks (copying a manifest over OUT's would drop the
     tasks another merge had added since)."""
-    import shutil
 
-    from r2pac_jax.config import ConfigError
-    from r2pac_jax.io import atomic_write_json, writing
 
     if not (src / "manifest.json").is_file():
         raise ConfigError(f"--merge-from {src}: no manifest.json there; give a directory a "
@@ -278,9 +277,6 @@ def finished_cells(out: Path, manifest: dict, algos, skip=()) -> dict:
 
 def write_outputs(out: Path, cells: dict, algos, families: dict, caption: str) -> str:
     """table.md, table.csv and table.png from cells[task][algo] (results.json dicts)."""
-    from r2pac_jax.io import atomic_write_text
-    from r2pac_jax.report import SAFE_LIMIT, plot_table, results_table
-
     md = results_table(cells, algos, families=families) + "\n\n" + caption
     atomic_write_text(out / "table.md", md + "\n")
     buf = io.StringIO()
@@ -308,9 +304,6 @@ def is_legacy_table(path: Path) -> bool:
     """A table directory written before directories were marked: its manifest reads back, or
     it holds nothing but a table's files and TASK/ALGO cells that are runs (a pipeline copies
     finished runs in before the table command first writes its manifest)."""
-    from r2pac_jax.io import marker_kind
-    from r2pac_jax.run_dir import is_legacy_run
-
     try:
         if "datasets" in json.loads((path / "manifest.json").read_text()):
             return True
@@ -334,13 +327,8 @@ def main(argv=None) -> int:
     def log(msg):
         print(msg, flush=True)
 
-    from r2pac_jax.agents import algo_module
-    from r2pac_jax.config import ConfigError, resolve_preset
-    from r2pac_jax.data import load_task_dataset
-    from r2pac_jax.io import claim_directory
     from r2pac_jax.lanes import Lanes
     from r2pac_jax.loop import Run, check_run
-    from r2pac_jax.tasks import get_task
 
     run = out = None  # what a Ctrl-C reports
     try:
@@ -417,7 +405,6 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # finished cells are kept; the same command continues the rest
-        import shlex
 
         from r2pac_jax.train import interrupted_line
 
@@ -430,7 +417,6 @@ def main(argv=None) -> int:
 
 
 def _write_table(out: Path, cells: dict, manifest: dict, algos, args, log) -> None:
-    from r2pac_jax.tasks import get_task
 
     families = {name: get_task(name).family for name in cells}
     versions = sorted({d["version"] for d in manifest["datasets"].values()})
@@ -453,8 +439,6 @@ def row_budget(task_name: str, file: str, row: dict) -> Optional[dict]:
     """{env_steps, dsrl_env_steps} of the file a row stands on: from its cells' results.json
     (`data_budget`, recorded since 2026-12-06), else from the file's name (a learned file at a
     budget other than DSRL's carries `-b<env steps>`); None where neither says (no recipe)."""
-    from r2pac_jax.tasks import get_task
-
     for r in row.values():
         b = r.get("data_budget")
         if b and b.get("dsrl_env_steps"):
@@ -498,8 +482,6 @@ def standing_lines(cells: dict, manifest: dict) -> list:
 
 def _table_only(out: Path, tasks: list, algos, args, log) -> int:
     """--table-only: the table from OUT's finished cells; nothing is trained."""
-    from r2pac_jax.config import ConfigError
-
     path = out / "manifest.json"
     if not path.is_file():
         raise ConfigError(f"--table-only: {out} holds no table (no manifest.json); run the "
@@ -512,7 +494,6 @@ def _table_only(out: Path, tasks: list, algos, args, log) -> int:
                           f"tasks: {', '.join(manifest['datasets'])})")
     found = args.algos is None  # no --algos: every algorithm with a finished cell, none dropped
     if found:
-        from r2pac_jax.agents import algo_names
 
         algos = algo_names()
     cells = finished_cells(out, manifest, algos)
