@@ -152,8 +152,9 @@ def widest(cfg) -> int:
     return best or 256
 
 
-def measure(algo: str, preset: str, task, ds, lanes: int, blocks: int, sets: list[str],
+def measure(algo: str, preset: str, task, ds, lanes: list[int], blocks: int, sets: list[str],
             peak: float) -> list[dict]:
+    """One row per phase and lane count; the FLOPs (per lane) are counted once per phase."""
     bs = BLOCK_STEPS[preset]
     overrides = parse_set(sets, [algo])
     cfg = make_config(task, algo, preset, dict(dict(steps=bs, block_steps=bs, eval_every=bs,
@@ -168,29 +169,35 @@ def measure(algo: str, preset: str, task, ds, lanes: int, blocks: int, sets: lis
         cost, f_start = step_cost(agent, cfg, data, phase)
         f_step = cost["flops"]
         per_step = f_step + f_start / bs
-        t = time_block(cfg, task, ds, lanes, blocks, phase)
-        achieved = per_step * t["seed_steps_per_s"] / 1e9
-        rows.append(dict(
-            kind="step", algo=algo, preset=preset, phase=phase, task=task.name, lanes=lanes,
-            matmul_precision=cfg.matmul_precision, batch=cfg.batch_size, width=width,
-            gflop_step=f_step / 1e9, gflop_block_start=f_start / 1e9, block_steps=bs,
-            gflop_per_step=per_step / 1e9, mtranscendentals_step=cost["transcendentals"] / 1e6,
-            flop_per_byte=f_step / max(cost["bytes accessed"], 1.0), steps_per_s=t["steps_per_s"],
-            seed_steps_per_s=t["seed_steps_per_s"], compile_s=t["compile_s"],
-            achieved_gflops=achieved, matmul_gflops_at_size=at_size, matmul_gflops_peak=peak,
-            frac_of_size=achieved / at_size, frac_of_peak=achieved / peak,
-            policy_mflop_per_env_step=pol / 1e6, **record()))
+        for n in lanes:
+            t = time_block(cfg, task, ds, n, blocks, phase)
+            achieved = per_step * t["seed_steps_per_s"] / 1e9
+            rows.append(dict(
+                kind="step", algo=algo, preset=preset, phase=phase, task=task.name, lanes=n,
+                matmul_precision=cfg.matmul_precision, batch=cfg.batch_size, width=width,
+                gflop_step=f_step / 1e9, gflop_block_start=f_start / 1e9, block_steps=bs,
+                gflop_per_step=per_step / 1e9,
+                mtranscendentals_step=cost["transcendentals"] / 1e6,
+                flop_per_byte=f_step / max(cost["bytes accessed"], 1.0),
+                steps_per_s=t["steps_per_s"], seed_steps_per_s=t["seed_steps_per_s"],
+                compile_s=t["compile_s"], achieved_gflops=achieved,
+                matmul_gflops_at_size=at_size, matmul_gflops_peak=peak,
+                frac_of_size=achieved / at_size, frac_of_peak=achieved / peak,
+                policy_mflop_per_env_step=pol / 1e6, **record()))
     return rows
 
 
 def table(lines: list[dict]) -> str:
-    out = ["| algorithm | preset | phase | GFLOP/step | steps/s | achieved GFLOP/s | "
+    out = ["| algorithm | preset | phase | lanes | GFLOP/step | steps/s | achieved GFLOP/s | "
            "of matmul at its size | of peak | FLOP/byte | M transc./step | policy MFLOP/env step |",
-           "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+           "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in lines:
         if r.get("kind") != "step":
             continue
-        out.append(f"| {r['algo']} | {r['preset']} | {r['phase']} | {r['gflop_per_step']:.4g} "
+        algo = r["algo"] + (f" ({r['matmul_precision']})"
+                            if r.get("matmul_precision", "default") != "default" else "")
+        out.append(f"| {algo} | {r['preset']} | {r['phase']} | {r['lanes']} | "
+                   f"{r['gflop_per_step']:.4g} "
                    f"| {r['steps_per_s']:.4g} | {r['achieved_gflops']:.3g} | "
                    f"{100 * r['frac_of_size']:.1f}% ({r['matmul_gflops_at_size']:.0f} at "
                    f"{r['batch']}x{r['width']}) | {100 * r['frac_of_peak']:.1f}% | "
@@ -227,10 +234,10 @@ def main(argv=None) -> int:
     for preset in args.presets.split(","):
         for algo in args.algos.split(","):
             try:
-                for lanes in (int(x) for x in args.lanes.split(",")):
-                    for row in measure(algo, preset, task, ds, lanes, args.blocks, args.set,
-                                       peak):
-                        emit(row)
+                for row in measure(algo, preset, task, ds,
+                                   [int(x) for x in args.lanes.split(",")], args.blocks,
+                                   args.set, peak):
+                    emit(row)
             except Exception as e:  # one algorithm's failure must not lose the others' rows
                 emit(dict(kind="error", algo=algo, preset=preset, error=repr(e)[:500]))
     return 0

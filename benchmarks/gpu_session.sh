@@ -97,16 +97,15 @@ case $section in
       table_*/*/*/config.json table_*/*/*/eval.jsonl table_*/*/*/metrics.jsonl)
     ;;
   efficiency)  # issue 56: FLOP efficiency at the paper preset, 1 and 4 lanes, default and bf16;
-    # then the Table-1 GPU-hour estimate from the measured 4-lane rates. BLOCKS / BS shrink it
-    # for a rehearsal on the CPU (EFF_PRESET=quick, tiny steps).
+    # then the Table-1 GPU-hour estimate from the measured 4-lane rates. EFF_PRESET=quick BLOCKS=1
+    # rehearse it on the CPU.
     p=${EFF_PRESET:-paper}
     step 230 efficiency python3 benchmarks/efficiency.py --presets "$p" --lanes 1,4 \
-      --algos r2pac,cpq,fisor --blocks "${BLOCKS:-3}" --out "$out/efficiency.jsonl"
+      --algos r2pac,cpq,fisor --blocks "${BLOCKS:-3}"
     step 150 efficiency python3 benchmarks/efficiency.py --presets "$p" --lanes 1,4 \
-      --algos r2pac,cpq,fisor --blocks "${BLOCKS:-3}" --set matmul_precision=bf16 \
-      --out "$out/efficiency.jsonl"
+      --algos r2pac,cpq,fisor --blocks "${BLOCKS:-3}" --set matmul_precision=bf16
     step 160 efficiency python3 benchmarks/efficiency.py --presets "$p" --lanes 4 \
-      --algos bc-all-mlp,coptidice,cdt,trebi --blocks "${BLOCKS:-3}" --out "$out/efficiency.jsonl"
+      --algos bc-all-mlp,coptidice,cdt,trebi --blocks "${BLOCKS:-3}"
     python3 benchmarks/efficiency.py --table "$out/efficiency.jsonl" > "$out/efficiency.md"
     # the paper's text lies beside the repository, which the GPU machine may not have: then run
     # gpu_hours.py on the returned efficiency.jsonl at home

@@ -49,4 +49,29 @@ def test_one_row_per_phase_with_consistent_figures(eff, capsys, tmp_path):
     assert r["achieved_gflops"] == pytest.approx(r["gflop_per_step"] * r["seed_steps_per_s"])
     assert r["frac_of_peak"] == pytest.approx(r["achieved_gflops"] / r["matmul_gflops_peak"])
     eff.main(["--table", str(out)])
-    assert "| bc-all-mlp | quick | actor |" in capsys.readouterr().out
+    assert "| bc-all-mlp | quick | actor | 1 |" in capsys.readouterr().out
+
+
+def test_the_gpu_hour_estimate_adds_steps_over_rates_per_task_and_phase(tmp_path):
+    # two rows of the paper's layout: CarRun (Bullet) and AntVel (AntVelocity, MuJoCo)
+    head = "\tBC\t\tCDT\t\tCPQ\t\tCOptiDICE\t\tTREBI\t\tFISOR\t\tours\t"
+    nums = "\t0.5" * 14
+    PAPER = "\n".join(["Table 1: Normalized DSRL benchmark results.", head,
+                       "CarRun" + nums, "AntVel" + nums])
+    gh = load_script("benchmarks/gpu_hours.py", "gpu_hours")
+    paper = tmp_path / "paper.txt"
+    paper.write_text(PAPER)
+
+    def row(algo, phase, lanes, rate, precision="default"):
+        return dict(kind="step", algo=algo, preset="paper", phase=phase, lanes=lanes,
+                    seed_steps_per_s=rate, matmul_precision=precision, device="gpu")
+
+    rows = [row("r2pac", "critic", 1, 100.0), row("r2pac", "critic", 4, 400.0),
+            row("r2pac", "actor", 4, 800.0), row("r2pac", "actor", 4, 1e9, "bf16"),
+            row("trebi", "actor", 4, 50.0)]
+    text, hours = gh.estimate(rows, seeds=3, paper=paper)
+    # 2 tasks x 3 seeds x (600k / 400 + 600k / 800) s; the 1-lane and bf16 rows are not used
+    assert hours["r2pac"] == pytest.approx(2 * 3 * (600_000 / 400 + 600_000 / 800) / 3600)
+    # TREBI's paper steps: 100k on a Bullet task, 200k on a MuJoCo one
+    assert hours["trebi"] == pytest.approx(3 * (100_000 + 200_000) / 50 / 3600)
+    assert "| CPQ | cpq | | not measured | |" in text
