@@ -201,6 +201,8 @@ def table(lines: list[dict]) -> str:
                    f"| {r['steps_per_s']:.4g} | {r['achieved_gflops']:.3g} | "
                    f"{100 * r['frac_of_size']:.1f}% ({r['matmul_gflops_at_size']:.0f} at "
                    f"{r['batch']}x{r['width']}) | {100 * r['frac_of_peak']:.1f}% | "
+                   f"{r.get('flop_per_byte', float('nan')):.3g} | "
+                   f"{r.get('mtranscendentals_step', float('nan')):.3g} | "
                    f"{r['policy_mflop_per_env_step']:.3g} |")
     return "\n".join(out)
 

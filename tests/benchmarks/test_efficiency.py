@@ -49,7 +49,10 @@ def test_one_row_per_phase_with_consistent_figures(eff, capsys, tmp_path):
     assert r["achieved_gflops"] == pytest.approx(r["gflop_per_step"] * r["seed_steps_per_s"])
     assert r["frac_of_peak"] == pytest.approx(r["achieved_gflops"] / r["matmul_gflops_peak"])
     eff.main(["--table", str(out)])
-    assert "| bc-all-mlp | quick | actor | 1 |" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "| bc-all-mlp | quick | actor | 1 |" in text
+    head, _, row = text.strip().splitlines()[-3:]
+    assert head.count("|") == row.count("|")
 
 
 def test_the_gpu_hour_estimate_adds_steps_over_rates_per_task_and_phase(tmp_path):
