@@ -43,7 +43,7 @@ Policy = Union[Callable, MemoryPolicy, InfoPolicy]
 def policy_of(agent, diagnostics: bool = False) -> Policy:
     """What evaluation runs for an agent: its memory triple if it has one; with `diagnostics`,
     its `act_info` where it has one; else `act` (each at the agent's `matmul_precision`)."""
-    mode = agent.cfg.matmul_precision
+    mode = getattr(getattr(agent, "cfg", None), "matmul_precision", "default")
 
     def at(fn):
         return with_matmul_precision(fn, mode)

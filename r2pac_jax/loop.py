@@ -70,7 +70,8 @@ def make_block(agent, phase: str, first_bad: bool = False) -> Callable:
                         for v in jax.tree_util.tree_leaves(metrics)]).all(0)
         return state, means, jnp.where(ok.all(), -1, jnp.argmin(ok))
 
-    return with_matmul_precision(block, cfg.matmul_precision)
+    # an agent written against the protocol alone may carry a config without the key
+    return with_matmul_precision(block, getattr(cfg, "matmul_precision", "default"))
 
 
 def time_block(cfg: Config, task: TaskSpec, ds: Dataset, lanes: int, blocks: int = 5,
