@@ -49,7 +49,7 @@ def load_policy(run_dir, lane: int = 0):
     memory` after each step (batched: obs [B, obs_dim], reward and cost [B]).
     """
     from r2pac_jax.agents import make_agent
-    from r2pac_jax.evaluate import MemoryPolicy, policy_of
+    from r2pac_jax.precision import with_matmul_precision
     from r2pac_jax.tasks import get_task
 
     cfg, _ = read_run(run_dir)
@@ -60,9 +60,14 @@ def load_policy(run_dir, lane: int = 0):
     if not 0 <= lane < n:
         raise IndexError(f"lane {lane} out of range: the run has {n} lanes")
     pp = jax.tree_util.tree_map(lambda x: x[lane], pp)
-    policy = policy_of(agent)  # at the run's matmul_precision
-    if isinstance(policy, MemoryPolicy):
-        return _memory_policy(policy, pp, task)
+
+    def at(fn):  # the run's matmul_precision, as in training and evaluation
+        return with_matmul_precision(fn, cfg.matmul_precision)
+
+    if hasattr(agent, "memory_init"):
+        return _memory_policy(at(agent.memory_init), at(agent.act_memory), at(agent.observe),
+                              pp, task)
+    policy = at(agent.act)
 
     @jax.jit
     def act_jit(obs, key):
@@ -89,12 +94,12 @@ def _check_obs(obs, task, ndims) -> None:
                          "observation vector")
 
 
-def _memory_policy(policy, pp, task):
+def _memory_policy(memory_init, act_memory, observe, pp, task):
     """load_policy's form for policies with memory (batched observations only)."""
 
-    step = jax.jit(lambda obs, key, memory: policy.act(
+    step = jax.jit(lambda obs, key, memory: act_memory(
         pp, jnp.asarray(obs, jnp.float32), key, memory))
-    init = jax.jit(lambda obs: policy.init(pp, jnp.asarray(obs, jnp.float32)))
+    init = jax.jit(lambda obs: memory_init(pp, jnp.asarray(obs, jnp.float32)))
 
     def act(obs, key, memory):
         _check_obs(obs, task, (2,))
@@ -105,6 +110,6 @@ def _memory_policy(policy, pp, task):
         return init(obs)
 
     act.init = init_memory
-    act.observe = jax.jit(lambda memory, reward, cost: policy.observe(
+    act.observe = jax.jit(lambda memory, reward, cost: observe(
         pp, memory, jnp.asarray(reward, jnp.float32), jnp.asarray(cost, jnp.float32)))
     return act
