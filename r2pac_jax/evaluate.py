@@ -9,7 +9,7 @@ lengths, and the DSRL normalised reward and cost of the episode means.
 """
 from __future__ import annotations
 
-from typing import Callable, NamedTuple, Optional, Union
+from typing import Callable, NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
@@ -17,42 +17,9 @@ import numpy as np
 
 from r2pac_jax.envs.base import pow2_bucket, put_rows, take_rows
 from r2pac_jax.errors import R2pacError
-from r2pac_jax.precision import with_matmul_precision
+from r2pac_jax.policy import (InfoPolicy, MemoryPolicy, Policy, policy_of, read_run,
+                              restore_policy_params)
 from r2pac_jax.tasks import TaskSpec, get_task
-
-
-class MemoryPolicy(NamedTuple):
-    """A policy with memory: init(params, obs[B, o]) -> mem; act(params, obs, key, mem) ->
-    (action[B, a], mem); observe(params, mem, reward[B], cost[B]) -> mem after each step."""
-
-    init: Callable
-    act: Callable
-    observe: Callable
-
-
-class InfoPolicy(NamedTuple):
-    """A stateless policy that also reports diagnostics of each state it acts in:
-    act_info(params, obs[B, o], key) -> (action[B, a], {name: [B] float})."""
-
-    act_info: Callable
-
-
-Policy = Union[Callable, MemoryPolicy, InfoPolicy]
-
-
-def policy_of(agent, diagnostics: bool = False) -> Policy:
-    """What evaluation runs for an agent: its memory triple if it has one; with `diagnostics`,
-    its `act_info` where it has one; else `act` (each at the agent's `matmul_precision`)."""
-    mode = getattr(getattr(agent, "cfg", None), "matmul_precision", "default")
-
-    def at(fn):
-        return with_matmul_precision(fn, mode)
-
-    if all(hasattr(agent, n) for n in ("memory_init", "act_memory", "observe")):
-        return MemoryPolicy(at(agent.memory_init), at(agent.act_memory), at(agent.observe))
-    if diagnostics and hasattr(agent, "act_info"):
-        return InfoPolicy(at(agent.act_info))
-    return at(agent.act)
 
 
 class _Stepper(NamedTuple):
@@ -274,7 +241,6 @@ def evaluate_run(run_dir, episodes: int = 20, selection: Optional[str] = None,
     """
     from r2pac_jax.agents import make_agent
     from r2pac_jax.config import ConfigError
-    from r2pac_jax.policy import read_run
 
     cfg, lanes = read_run(run_dir)
     if selection is not None and "selection" not in cfg.flat():
@@ -287,8 +253,6 @@ def evaluate_run(run_dir, episodes: int = 20, selection: Optional[str] = None,
     task = get_task(cfg.task)
     task.check_physics(physics)
     agent = make_agent(cfg, task.obs_dim, task.act_dim)
-    from r2pac_jax.policy import restore_policy_params
-
     pp, lanes = restore_policy_params(run_dir, agent)
     if guidance_scale is not None:
         if "guidance" not in pp:
@@ -306,7 +270,6 @@ def selection_rules(run_dir) -> tuple[str, ...]:
     """The selection rules a run's policy can be re-evaluated under: () for a policy without
     candidates, else the trained rule first, then the others."""
     from r2pac_jax.agents.selection import RULES
-    from r2pac_jax.policy import read_run
 
     cfg, _ = read_run(run_dir)
     flat = cfg.flat()

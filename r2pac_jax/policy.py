@@ -1,13 +1,50 @@
-"""Load a trained policy from a run directory as a plain jitted function (any algorithm)."""
+"""What a policy is (an agent's act, its memory triple or its act with diagnostics, at the run's
+matmul precision), and loading a trained one from a run directory as a plain jitted function."""
 from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Callable, NamedTuple, Union
 
 import jax
 import jax.numpy as jnp
 
 from r2pac_jax.config import Config
+from r2pac_jax.precision import with_matmul_precision
+
+
+class MemoryPolicy(NamedTuple):
+    """A policy with memory: init(params, obs[B, o]) -> mem; act(params, obs, key, mem) ->
+    (action[B, a], mem); observe(params, mem, reward[B], cost[B]) -> mem after each step."""
+
+    init: Callable
+    act: Callable
+    observe: Callable
+
+
+class InfoPolicy(NamedTuple):
+    """A stateless policy that also reports diagnostics of each state it acts in:
+    act_info(params, obs[B, o], key) -> (action[B, a], {name: [B] float})."""
+
+    act_info: Callable
+
+
+Policy = Union[Callable, MemoryPolicy, InfoPolicy]
+
+
+def policy_of(agent, diagnostics: bool = False) -> Policy:
+    """What evaluation runs for an agent: its memory triple if it has one; with `diagnostics`,
+    its `act_info` where it has one; else `act` (each at the agent's `matmul_precision`)."""
+    mode = getattr(getattr(agent, "cfg", None), "matmul_precision", "default")
+
+    def at(fn):
+        return with_matmul_precision(fn, mode)
+
+    if all(hasattr(agent, n) for n in ("memory_init", "act_memory", "observe")):
+        return MemoryPolicy(at(agent.memory_init), at(agent.act_memory), at(agent.observe))
+    if diagnostics and hasattr(agent, "act_info"):
+        return InfoPolicy(at(agent.act_info))
+    return at(agent.act)
 
 
 def read_run(run_dir) -> tuple[Config, dict]:
@@ -49,7 +86,6 @@ def load_policy(run_dir, lane: int = 0):
     memory` after each step (batched: obs [B, obs_dim], reward and cost [B]).
     """
     from r2pac_jax.agents import make_agent
-    from r2pac_jax.precision import with_matmul_precision
     from r2pac_jax.tasks import get_task
 
     cfg, _ = read_run(run_dir)
@@ -60,14 +96,9 @@ def load_policy(run_dir, lane: int = 0):
     if not 0 <= lane < n:
         raise IndexError(f"lane {lane} out of range: the run has {n} lanes")
     pp = jax.tree_util.tree_map(lambda x: x[lane], pp)
-
-    def at(fn):  # the run's matmul_precision, as in training and evaluation
-        return with_matmul_precision(fn, cfg.matmul_precision)
-
-    if hasattr(agent, "memory_init"):
-        return _memory_policy(at(agent.memory_init), at(agent.act_memory), at(agent.observe),
-                              pp, task)
-    policy = at(agent.act)
+    policy = policy_of(agent)  # as evaluation runs it
+    if isinstance(policy, MemoryPolicy):
+        return _memory_policy(policy, pp, task)
 
     @jax.jit
     def act_jit(obs, key):
@@ -94,12 +125,12 @@ def _check_obs(obs, task, ndims) -> None:
                          "observation vector")
 
 
-def _memory_policy(memory_init, act_memory, observe, pp, task):
+def _memory_policy(policy: MemoryPolicy, pp, task):
     """load_policy's form for policies with memory (batched observations only)."""
 
-    step = jax.jit(lambda obs, key, memory: act_memory(
+    step = jax.jit(lambda obs, key, memory: policy.act(
         pp, jnp.asarray(obs, jnp.float32), key, memory))
-    init = jax.jit(lambda obs: memory_init(pp, jnp.asarray(obs, jnp.float32)))
+    init = jax.jit(lambda obs: policy.init(pp, jnp.asarray(obs, jnp.float32)))
 
     def act(obs, key, memory):
         _check_obs(obs, task, (2,))
@@ -110,6 +141,6 @@ def _memory_policy(memory_init, act_memory, observe, pp, task):
         return init(obs)
 
     act.init = init_memory
-    act.observe = jax.jit(lambda memory, reward, cost: observe(
+    act.observe = jax.jit(lambda memory, reward, cost: policy.observe(
         pp, memory, jnp.asarray(reward, jnp.float32), jnp.asarray(cost, jnp.float32)))
     return act

@@ -26,9 +26,10 @@ import jax
 import jax.numpy as jnp
 from jax.extend import core as jcore
 
+from r2pac_jax.config import CHOICES
 from r2pac_jax.errors import ConfigError
 
-MODES = ("default", "highest", "bf16")
+MODES = CHOICES["matmul_precision"]  # the config's choices: one list
 _MATMULS = ("dot_general", "conv_general_dilated")
 
 
@@ -57,7 +58,7 @@ def with_matmul_precision(fn: Callable, mode: str) -> Callable:
 
 
 def _low(x):
-    return x.astype(jnp.bfloat16) if x.dtype == jnp.float32 else x
+    return x.astype(jnp.bfloat16)
 
 
 def _rounded(x):

@@ -71,7 +71,7 @@ class Algorithm(Protocol):
         """Per-run scalars worth reporting in results.json (e.g. the threshold), or {}."""
 
     # Optional: a policy with memory (CDT's context of returns-/costs-to-go). An agent that
-    # defines all three is evaluated through them (`evaluate.policy_of`); `act` then acts as
+    # defines all three is evaluated through them (`policy.policy_of`); `act` then acts as
     # at an episode's first step.
     #   memory_init(pp, obs[B, o]) -> mem
     #   act_memory(pp, obs[B, o], key, mem) -> (action[B, a], mem)
