@@ -142,6 +142,24 @@ class Checkpointer:
             "changed. Start the run again into another --out (or move the checkpoints away "
             "and rerun without --resume)")
 
+    def save_blocks(self, step: int, state: Any, blocks_done: int, diverged: dict) -> None:
+        """A training run's checkpoint: the state and where the run stands (blocks done, its
+        diverged lanes). Ctrl-C waits for the save to finish."""
+        from r2pac_jax.io import sigint_deferred
+
+        with sigint_deferred():
+            self.save(step, state, {"blocks_done": blocks_done, "step": step,
+                                    "diverged": {str(k): v for k, v in diverged.items()}})
+
+    def resume_blocks(self, like: Any, log=print) -> Optional[tuple[int, Any, int, dict]]:
+        """(step, state, blocks done, diverged lanes) of the newest readable `save_blocks`
+        checkpoint, or None where there is none."""
+        if self.latest_step() is None:
+            return None
+        step, state, meta = self.restore_newest_readable(like, log=log)
+        diverged = {int(k): v for k, v in meta.get("diverged", {}).items()}
+        return step, state, int(meta["blocks_done"]), diverged
+
     def quarantine(self, step: int) -> Path:
         """Move checkpoint `step` out of orbax's sight (it would refuse to save that step again)."""
         import os

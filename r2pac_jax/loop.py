@@ -23,14 +23,13 @@ from r2pac_jax.agents import make_agent
 from r2pac_jax.config import Config, default_hparams
 from r2pac_jax.data.dsrl import Dataset
 from r2pac_jax.divergence import MODES, TrainingDiverged, check_finite, evaluate_lanes
-from r2pac_jax.io import sigint_deferred
 from r2pac_jax.lanes import Lanes, place
 from r2pac_jax.precision import with_matmul_precision
 from r2pac_jax.progress import RunProgress
 from r2pac_jax.run_dir import RunDirectory
 from r2pac_jax.tasks import TaskSpec
 
-__all__ = ["Run", "TrainingDiverged", "compiled", "make_block", "make_data", "make_train"]
+__all__ = ["Run", "RunEvaluation", "TrainingDiverged", "compiled", "make_block", "make_data", "make_train"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -164,19 +163,55 @@ def check_run(cfg: Config, task: TaskSpec, ds: Dataset) -> None:
 # The run: blocks between evaluations and checkpoints
 
 
+class RunEvaluation:
+    """A run's evaluations: when one falls due, and every lane's scores (diverged lanes: NaN,
+    not run). With diagnostics the policy also reports them (R2PAC: its candidates' spread, the
+    reward the choice gives up, V_c > l); they consume no random key, so every score is the
+    same without them."""
+
+    def __init__(self, cfg: Config, task: TaskSpec, physics: str, diagnostics: bool,
+                 log: Callable[[str], None]):
+        self.cfg = cfg
+        self.agent, _, _, policy_params = compiled(cfg, task.obs_dim, task.act_dim)
+        self.evaluator = (lane_evaluator(cfg, task, cfg.eval_episodes, physics, diagnostics)
+                          if cfg.eval_episodes > 0 else None)
+        self._params = (diagnostic_params(cfg, task.obs_dim, task.act_dim) if diagnostics
+                        else policy_params)
+        note = getattr(self.agent, "diagnostics_note", lambda: None)()
+        if diagnostics and self.evaluator is not None and note:
+            log(f"note: {note}")
+
+    @property
+    def backend(self) -> Optional[str]:
+        """The physics the evaluation ran on (None without evaluation)."""
+        return None if self.evaluator is None else getattr(self.evaluator.env, "backend", "jax")
+
+    def due(self, phase: str, phase_step: int, last: bool) -> bool:
+        if self.evaluator is None or phase in self.agent.unevaluated_phases:
+            return False
+        return last or phase_step % self.cfg.eval_every == 0
+
+    def __call__(self, state, lanes: Lanes, step: int, diverged: dict) -> dict:
+        """Every lane's evaluation at `step`: per-episode [L, episodes] and per-lane [L]."""
+        from r2pac_jax.evaluate import eval_keys
+
+        return evaluate_lanes(self.evaluator, self._params(state, lanes.hp),
+                              eval_keys(lanes.seeds, step), diverged, lanes.size,
+                              self.cfg.eval_episodes)
+
+
 class Run:
     """Trains all lanes of one config on one dataset: blocks, with evaluations and checkpoints
     between them. Its directory's files and rules are `run_dir.RunDirectory`'s, its logs and
-    progress bar `progress.RunProgress`'s, non-finite lanes `divergence`'s."""
+    progress bar `progress.RunProgress`'s, its evaluations `RunEvaluation`'s, non-finite lanes
+    `divergence`'s."""
 
     def __init__(self, cfg: Config, task: TaskSpec, ds: Dataset, out_dir, lanes: Lanes,
                  physics: str = "auto", progress: bool = True, log: Callable[[str], None] = print,
                  dataset_label: str = "", nonfinite: str = "stop", diagnostics: bool = True):
         """nonfinite: "stop" (a block with a NaN/inf metric stops the run) or "mark" (sweeps:
         the diverged lanes are recorded, reported without scores, and the others finish).
-        diagnostics: evaluation also logs the policy's diagnostics (R2PAC: its candidates'
-        spread, the reward the choice gives up, V_c > l); they consume no random key, so every
-        score is the same without them."""
+        diagnostics: evaluations also log the policy's diagnostics (`RunEvaluation`)."""
         if nonfinite not in MODES:
             raise ValueError(f"nonfinite must be 'stop' or 'mark', got {nonfinite!r}")
         self.cfg, self.task, self.lanes, self.nonfinite = cfg, task, lanes, nonfinite
@@ -193,13 +228,7 @@ class Run:
         self.agent.check_data(task, ds)
         self.data = self.agent.make_data(task, ds)
         self.dataset_info = dict(source=ds.source, sha256=ds.digest(), transitions=int(ds.size))
-        self.evaluator = (lane_evaluator(cfg, task, cfg.eval_episodes, physics, diagnostics)
-                          if cfg.eval_episodes > 0 else None)
-        self._eval_params = (diagnostic_params(cfg, task.obs_dim, task.act_dim) if diagnostics
-                             else self._policy_params)
-        note = getattr(self.agent, "diagnostics_note", lambda: None)()
-        if diagnostics and self.evaluator is not None and note:
-            log(f"note: {note}")
+        self.evaluation = RunEvaluation(cfg, task, physics, diagnostics, log)
 
     @property
     def schedule(self) -> list[tuple[str, int]]:
@@ -207,21 +236,12 @@ class Run:
         n = self.cfg.steps // self.cfg.block_steps
         return [(p, (i + 1) * self.cfg.block_steps) for p in self.cfg.phases for i in range(n)]
 
-    def _evaluates(self, phase: str, phase_step: int, last: bool) -> bool:
-        if self.evaluator is None or phase in self.agent.unevaluated_phases:
-            return False
-        return last or phase_step % self.cfg.eval_every == 0
-
     def init_state(self):
         return place(self._init(self.lanes.init_keys(), self.lanes.hp), self.lanes.size)
 
     def evaluate(self, state, step: int) -> dict:
         """Every lane's evaluation at `step` (diverged lanes: NaN, not run)."""
-        from r2pac_jax.evaluate import eval_keys
-
-        return evaluate_lanes(self.evaluator, self._eval_params(state, self.lanes.hp),
-                              eval_keys(self.lanes.seeds, step), self.diverged, self.lanes.size,
-                              self.cfg.eval_episodes)
+        return self.evaluation(state, self.lanes, step, self.diverged)
 
     def run(self, resume: bool = False, stop_after: Optional[int] = None) -> Optional[dict]:
         """Train to the end (or stop after `stop_after` blocks, as an interruption would, and
@@ -257,11 +277,12 @@ class Run:
                 check_finite(metrics, step - cfg.block_steps + 1 + np.asarray(first_bad),
                              ckpt.latest_step(), self.diverged, self.nonfinite, self.lanes,
                              f"{self.task.name} {cfg.algo}", self.log)
-                if self._evaluates(phase, phase_step, last):
+                if self.evaluation.due(phase, phase_step, last):
                     last_eval = self.evaluate(state, step)
                     shown.evaluation(last_eval, step)
                 if last or step % cfg.checkpoint_every == 0:
-                    self._save(ckpt, step, state, i + 1)
+                    ckpt.save_blocks(step, state, i + 1, self.diverged)
+                    self.last_checkpoint = step
                 shown.show(phase, metrics, last_eval)
             shown.close_bar()
             return self._finish(state, last_eval, time.time() - t_start, steps_timed,
@@ -291,29 +312,22 @@ class Run:
         ckpt = Checkpointer(self.out / "checkpoints")
         state, done_blocks, resume_step = self.init_state(), 0, 0
         self.step_reached, self.last_checkpoint = 0, None
-        if resume and ckpt.latest_step() is not None:
-            latest, state, meta = ckpt.restore_newest_readable(state, log=self.log)
+        restored = ckpt.resume_blocks(state, log=self.log) if resume else None
+        if restored is not None:
+            resume_step, state, done_blocks, self.diverged = restored
             state = place(state, self.lanes.size)
-            done_blocks = int(meta["blocks_done"])
-            self.diverged = {int(k): v for k, v in meta.get("diverged", {}).items()}
-            resume_step = self.step_reached = self.last_checkpoint = latest
-            self.log(f"resuming {self.out} from step {latest}")
+            self.step_reached = self.last_checkpoint = resume_step
+            self.log(f"resuming {self.out} from step {resume_step}")
         self.dir.write_identity(self.cfg, self.dataset_info, self.lanes, self.task.name,
                                 self.dataset_label, self.physics)
         return ckpt, state, done_blocks, resume_step
-
-    def _save(self, ckpt, step: int, state, blocks_done: int) -> None:
-        with sigint_deferred():  # Ctrl-C waits for the save to finish
-            ckpt.save(step, state, {"blocks_done": blocks_done, "step": step,
-                                    "diverged": {str(k): v for k, v in self.diverged.items()}})
-            self.last_checkpoint = step
 
     def _finish(self, state, last_eval, wall: float, steps_timed: int, resume_step: int,
                 logs) -> dict:
         """The final evaluation (if the last block had none), the policy, results and plots."""
         from r2pac_jax.results import run_results
 
-        if last_eval is None and self.evaluator is not None:  # resumed after the last block
+        if last_eval is None and self.evaluation.evaluator is not None:  # resumed at the end
             last_eval = self.evaluate(state, len(self.schedule) * self.cfg.block_steps)
         self.dir.save_policy(self.cfg.total_steps, self._policy_params(state, self.lanes.hp),
                              {"task": self.task.name, "algo": self.cfg.algo,
@@ -322,9 +336,8 @@ class Run:
         results = run_results(
             self.cfg, self.task.name, self.lanes, self.agent.summary(state), last_eval, wall,
             steps_timed, self.dataset_label, self.physics, self.diverged, resume_step,
-            eval_backend=(getattr(self.evaluator.env, "backend", "jax")
-                          if self.evaluator is not None else None),
-            dataset_path=self.dataset_path, provenance=True)
+            eval_backend=self.evaluation.backend, dataset_path=self.dataset_path,
+            provenance=True)
         self.dir.write_results(results)
         self.dir.plot(logs, f"{self.task.name} {self.cfg.algo}", self.agent.plot_metrics)
         return results

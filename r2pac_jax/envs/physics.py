@@ -144,7 +144,6 @@ class MjxEnv(JaxEnv):
                         physics=data, info=extras)
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
-        mjx = self._mjx
         action = jnp.clip(action, -1.0, 1.0)
         before = self._view(state.physics)
         data = state.physics.replace(**self.task.inputs(before, action, state.info))
