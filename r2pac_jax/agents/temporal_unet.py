@@ -88,6 +88,13 @@ def _down(x, features):
     return Conv(features, 3, stride=2, padding=1)(x)
 
 
+def _level(x, temb, features):
+    """A level's two residual blocks (made in the calling module, so parameter names are
+    the same as when written out there)."""
+    x = ResidualBlock(features)(x, temb)  # made in order: flax names modules as they are made
+    return ResidualBlock(features)(x, temb)
+
+
 class TemporalUnet(nn.Module):
     """x [B, H, D], t [B] -> [B, H, D]. H must be divisible by 2^(len(dim_mults) - 1).
 
@@ -105,17 +112,13 @@ class TemporalUnet(nn.Module):
         temb = TimeMLP(self.dim)(t)
         skips = []
         for i, d in enumerate(dims):
-            x = ResidualBlock(d)(x, temb)
-            x = ResidualBlock(d)(x, temb)
+            x = _level(x, temb, d)
             skips.append(x)
             if i < len(dims) - 1:
                 x = _down(x, d)
-        x = ResidualBlock(dims[-1])(x, temb)
-        x = ResidualBlock(dims[-1])(x, temb)
+        x = _level(x, temb, dims[-1])
         for d in reversed(dims[:-1]):
-            x = jnp.concatenate([x, skips.pop()], -1)
-            x = ResidualBlock(d)(x, temb)
-            x = ResidualBlock(d)(x, temb)
+            x = _level(jnp.concatenate([x, skips.pop()], -1), temb, d)
             x = nn.ConvTranspose(d, (4,), strides=(2,), padding="SAME")(x)
         x = ConvBlock(self.dim)(x)
         return Conv(self.transition_dim, 1)(x)
@@ -133,9 +136,7 @@ class ValueFunction(nn.Module):
         dims = [self.dim * m for m in self.dim_mults]
         temb = TimeMLP(self.dim)(t)
         for d in dims:
-            x = ResidualBlock(d)(x, temb)
-            x = ResidualBlock(d)(x, temb)
-            x = _down(x, d)
+            x = _down(_level(x, temb, d), d)
         for d in (dims[-1] // 2, dims[-1] // 4):
             x = ResidualBlock(d)(x, temb)
             x = _down(x, d)

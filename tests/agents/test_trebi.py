@@ -114,3 +114,19 @@ def test_the_unets_matmul_convolution_is_flaxs_convolution(kernel, stride, paddi
         np.testing.assert_array_equal(a, b)
     p = jax.tree_util.tree_map(lambda a: a + 0.1, p_flax)  # a non-zero bias too
     np.testing.assert_allclose(ours.apply(p, x), flax_conv.apply(p, x), rtol=1e-5, atol=1e-5)
+
+
+def test_the_unets_blocks_are_named_in_the_order_they_are_applied():
+    """Checkpoints and Diffuser-ported weights address blocks by name: ResidualBlock_0 is the
+    first applied (it reads the window's channels), and each level's second block reads the
+    first's features."""
+    from r2pac_jax.agents.temporal_unet import TemporalUnet, ValueFunction
+
+    x, t = jnp.zeros((2, 8, 5)), jnp.zeros((2,))
+    for net in (TemporalUnet(transition_dim=5, dim=16, dim_mults=(1, 2)),
+                ValueFunction(dim=16, dim_mults=(1, 2))):
+        p = net.init(jax.random.PRNGKey(0), x, t)["params"]
+        first = p["ResidualBlock_0"]["ConvBlock_0"]["Conv_0"]["kernel"].shape
+        second = p["ResidualBlock_1"]["ConvBlock_0"]["Conv_0"]["kernel"].shape
+        third = p["ResidualBlock_2"]["ConvBlock_0"]["Conv_0"]["kernel"].shape
+        assert (first, second, third) == ((5, 5, 16), (5, 16, 16), (5, 16, 32)), type(net)
