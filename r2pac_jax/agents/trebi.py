@@ -276,7 +276,8 @@ class Agent(ChunkAlgorithm):
     def make_data(self, task, ds) -> TREBIData:
         keep = self.keep_episodes(task, ds)
         seq = sequences.build_sequences(ds, keep_episodes=keep, cost_weight_base=None)
-        starts, lengths, _, _ = sequences.episode_table(ds)
+        # the kept episodes' rows, the only ones a window starts in (others' values stay 0)
+        starts, lengths = np.asarray(seq.ep_start), np.asarray(seq.ep_len)
         g = self.cfg.value_discount
         f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
         std = lambda a: np.maximum(a.std(0), 1e-6)  # noqa: E731

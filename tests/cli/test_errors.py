@@ -56,6 +56,9 @@ def _cli_cases(monkeypatch, tmp_path):
     from r2pac_jax import table, train
     from r2pac_jax.data.__main__ import main as data_main
 
+    # table binds the name at import (JAX-free imports sit at its top): patched where it is used
+    monkeypatch.setattr(table, "load_task_dataset", _raise)
+
     spec = tmp_path / "s.json"
     spec.write_text("{}")
     return [
