@@ -144,12 +144,9 @@ class Checkpointer:
 
     def save_blocks(self, step: int, state: Any, blocks_done: int, diverged: dict) -> None:
         """A training run's checkpoint: the state and where the run stands (blocks done, its
-        diverged lanes). Ctrl-C waits for the save to finish."""
-        from r2pac_jax.io import sigint_deferred
-
-        with sigint_deferred():
-            self.save(step, state, {"blocks_done": blocks_done, "step": step,
-                                    "diverged": {str(k): v for k, v in diverged.items()}})
+        diverged lanes)."""
+        self.save(step, state, {"blocks_done": blocks_done, "step": step,
+                                "diverged": {str(k): v for k, v in diverged.items()}})
 
     def resume_blocks(self, like: Any, log=print) -> Optional[tuple[int, Any, int, dict]]:
         """(step, state, blocks done, diverged lanes) of the newest readable `save_blocks`
@@ -204,9 +201,10 @@ def policy_like(agent, lanes: int):
     """Shapes and dtypes of `lanes` lanes' policy parameters (the restore target)."""
     import jax.numpy as jnp
 
-    from r2pac_jax.config import default_hparams
+    from r2pac_jax.agents import algo_module
 
-    hp = default_hparams(agent.cfg)
+    # shapes only: any value of the per-lane scalars will do
+    hp = {k: jnp.float32(0) for k in algo_module(agent.cfg.algo).HPARAMS}
     hp_l = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (lanes,)), hp)
     return jax.eval_shape(lambda k: jax.vmap(agent.policy_params)(
         jax.vmap(agent.init)(k, hp_l), hp_l), jnp.zeros((lanes, 2), jnp.uint32))

@@ -23,6 +23,7 @@ from r2pac_jax.agents import make_agent
 from r2pac_jax.config import Config, default_hparams
 from r2pac_jax.data.dsrl import Dataset
 from r2pac_jax.divergence import MODES, TrainingDiverged, check_finite, evaluate_lanes
+from r2pac_jax.io import sigint_deferred
 from r2pac_jax.lanes import Lanes, place
 from r2pac_jax.precision import with_matmul_precision
 from r2pac_jax.progress import RunProgress
@@ -156,7 +157,16 @@ def diagnostic_params(cfg: Config, obs_dim: int, act_dim: int):
 
 def check_run(cfg: Config, task: TaskSpec, ds: Dataset) -> None:
     """Everything about (config, dataset) that can be refused before any training starts."""
-    make_agent(cfg, task.obs_dim, task.act_dim).check_data(task, ds)
+    check_data(make_agent(cfg, task.obs_dim, task.act_dim), task, ds,
+               Lanes.build(cfg, [0]).cell_hparams)
+
+
+def check_data(agent, task: TaskSpec, ds: Dataset, cells: list[dict]) -> None:
+    """The agent's checks of the dataset, then of each lane cell's values where it has such
+    checks (`check_cells`: CDT's cost targets against the data's episode costs)."""
+    agent.check_data(task, ds)
+    if hasattr(agent, "check_cells"):
+        agent.check_cells(task, ds, cells)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -225,7 +235,7 @@ class Run:
                                   if p and Path(p).is_file()), None)
         self.agent, self._init, self._blocks, self._policy_params = compiled(
             cfg, task.obs_dim, task.act_dim)
-        self.agent.check_data(task, ds)
+        check_data(self.agent, task, ds, lanes.cell_hparams)
         self.data = self.agent.make_data(task, ds)
         self.dataset_info = dict(source=ds.source, sha256=ds.digest(), transitions=int(ds.size))
         self.evaluation = RunEvaluation(cfg, task, physics, diagnostics, log)
@@ -281,8 +291,9 @@ class Run:
                     last_eval = self.evaluate(state, step)
                     shown.evaluation(last_eval, step)
                 if last or step % cfg.checkpoint_every == 0:
-                    ckpt.save_blocks(step, state, i + 1, self.diverged)
-                    self.last_checkpoint = step
+                    with sigint_deferred():  # Ctrl-C waits for the save and its record here
+                        ckpt.save_blocks(step, state, i + 1, self.diverged)
+                        self.last_checkpoint = step
                 shown.show(phase, metrics, last_eval)
             shown.close_bar()
             return self._finish(state, last_eval, time.time() - t_start, steps_timed,

@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
+from r2pac_jax.agents.per_lane import lane_view
 from r2pac_jax.agents.spec import AlgorithmSpec
 from r2pac_jax.errors import ConfigError
 
@@ -58,5 +59,8 @@ def algo_module(algo: str) -> AlgorithmSpec:
 
 
 def make_agent(cfg, obs_dim: int, act_dim: int):
-    """The agent object (static structure: networks, optimiser) of cfg's algorithm."""
-    return algo_module(cfg.algo).Agent(cfg, obs_dim, act_dim)
+    """The agent object (static structure: networks, optimiser) of cfg's algorithm. Its
+    `cfg` holds markers in place of the vmappable scalars: inside an agent their one place is
+    `hp[name]` (`per_lane.py`)."""
+    spec = algo_module(cfg.algo)
+    return spec.Agent(lane_view(cfg, spec.HPARAMS), obs_dim, act_dim)

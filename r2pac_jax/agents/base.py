@@ -36,7 +36,8 @@ if TYPE_CHECKING:  # the config sits above the agents: a type only, never import
 class Algorithm(Protocol):
     """What the loop needs of an agent. All methods are pure and jittable except `make_data`
     and `check_data` (host side, once per run). `hp` is a dict of [] float32 scalars named by
-    the module's HPARAMS (vmapped to [L] by the loop)."""
+    the module's HPARAMS (vmapped to [L] by the loop): their one place, since `cfg` holds
+    `per_lane.PerLane` markers there (a sweep's lanes differ in them)."""
 
     cfg: Config
     plot_metrics: tuple[str, ...]  # metric keys drawn in training.png
@@ -70,6 +71,8 @@ class Algorithm(Protocol):
     def summary(self, state: Any) -> dict:
         """Per-run scalars worth reporting in results.json (e.g. the threshold), or {}."""
 
+    # Optional: check_cells(task, ds, cells: list[{name: value}]): checks of the lane cells'
+    # HPARAMS values against the data (host side, once per run; CDT's cost targets).
     # Optional: a policy with memory (CDT's context of returns-/costs-to-go). An agent that
     # defines all three is evaluated through them (`policy.policy_of`); `act` then acts as
     # at an episode's first step.

@@ -213,6 +213,13 @@ class Memory(NamedTuple):
     next_ctg: jax.Array  # [B]
 
 
+def _warn_outside(name: str, v: float, vals) -> None:
+    if not vals.min() <= v <= vals.max():
+        warnings.warn(f"cdt: {name}={v:g} lies outside the data's episode range "
+                      f"[{vals.min():.4g}, {vals.max():.4g}]; the transformer was never "
+                      "conditioned on such a value", stacklevel=3)
+
+
 class Agent(ChunkAlgorithm):
     plot_metrics = ("loss_actor", "nll", "entropy", "cost_acc")
 
@@ -256,14 +263,14 @@ class Agent(ChunkAlgorithm):
         if cfg.target_rule == "best_safe" and not (cost <= task.kappa).any():
             raise ConfigError(f"cdt: {ds.source} has no episode with cost <= kappa={task.kappa} "
                               "for the return target; use target_rule=value with target_return")
-        for name, v, vals in (("target_return", cfg.target_return, ret),
-                              ("target_cost", cfg.target_cost, cost)):
-            if name == "target_return" and cfg.target_rule != "value":
-                continue
-            if not vals.min() <= v <= vals.max():
-                warnings.warn(f"cdt: {name}={v:g} lies outside the data's episode range "
-                              f"[{vals.min():.4g}, {vals.max():.4g}]; the transformer was "
-                              "never conditioned on such a value", stacklevel=2)
+        if cfg.target_rule == "value":
+            _warn_outside("target_return", cfg.target_return, ret)
+
+    def check_cells(self, task, ds, cells: list) -> None:
+        """Each lane cell's cost target against the data's episode costs (a warning)."""
+        _, _, _, cost = self._episodes(task, ds)
+        for v in sorted({c["target_cost"] for c in cells}):
+            _warn_outside("target_cost", v, cost)
 
     def _target_return(self, task, ret, cost) -> float:
         if self.cfg.target_rule == "value":
