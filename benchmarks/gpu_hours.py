@@ -57,7 +57,7 @@ def estimate(rows: list[dict], precision: str = "default", seeds: int = 3,
              f"(matmul_precision={precision}; rates at the most lanes measured):", "",
              "| column | algo | steps per seed (phases) | seed-steps/s (lanes) | hours |",
              "|---|---|---|---|---:|"]
-    total = 0.0
+    total, stand_ins = 0.0, []
     for col, algo in columns.items():
         if algo not in got:
             lines.append(f"| {col} | {algo} | | not measured | |")
@@ -66,16 +66,23 @@ def estimate(rows: list[dict], precision: str = "default", seeds: int = 3,
         for task in tasks:
             cfg = make_config(task, algo, "paper")
             for phase in cfg.phases:
-                rate = got[algo].get(phase) or next(iter(got[algo].values()))
+                rate = got[algo].get(phase)
+                if rate is None:  # an unmeasured phase at a measured one's rate, said below
+                    other, rate = next(iter(got[algo].items()))
+                    if (algo, phase, other) not in stand_ins:
+                        stand_ins.append((algo, phase, other))
                 secs += seeds * cfg.steps / rate[0]
             steps_txt.add(f"{cfg.steps:,} x {len(cfg.phases)}")
         rate_txt = ", ".join(f"{p} {v[0]:,.3g} ({v[1]})" for p, v in got[algo].items())
         hours = hours_of[algo] = secs / 3600
         total += hours
+        mark = " *" if any(a == algo for a, _, _ in stand_ins) else ""
         lines.append(f"| {col} | {algo} | {' or '.join(sorted(steps_txt))} | {rate_txt} | "
-                     f"{hours:,.1f} |")
+                     f"{hours:,.1f}{mark} |")
     lines += ["", f"Sum over the measured columns: {total:,.1f} hours. Per column: sum over "
                   f"tasks and phases of {seeds} x steps / (seed-steps/s), / 3600."]
+    lines += [f"* {algo}: its {phase} phase was not measured; its {other} phase's rate stands in."
+              for algo, phase, other in stand_ins]
     return "\n".join(lines), hours_of
 
 

@@ -78,3 +78,9 @@ def test_the_gpu_hour_estimate_adds_steps_over_rates_per_task_and_phase(tmp_path
     # TREBI's paper steps: 100k on a Bullet task, 200k on a MuJoCo one
     assert hours["trebi"] == pytest.approx(3 * (100_000 + 200_000) / 50 / 3600)
     assert "| CPQ | cpq | | not measured | |" in text
+    assert " *" not in text
+    # a phase not measured is estimated at a measured phase's rate, and the text says so
+    text, hours = gh.estimate([row("r2pac", "critic", 4, 400.0)], seeds=3, paper=paper)
+    assert hours["r2pac"] == pytest.approx(2 * 3 * (600_000 / 400 + 600_000 / 400) / 3600)
+    assert "r2pac: its actor phase was not measured; its critic phase's rate stands in." in text
+    assert f"{hours['r2pac']:,.1f} * |" in text
