@@ -30,7 +30,8 @@ from r2pac_jax.progress import RunProgress
 from r2pac_jax.run_dir import RunDirectory
 from r2pac_jax.tasks import TaskSpec
 
-__all__ = ["Run", "RunEvaluation", "TrainingDiverged", "compiled", "make_block", "make_data", "make_train"]
+__all__ = ["Run", "RunEvaluation", "TrainingDiverged", "compiled", "make_block", "make_data",
+           "make_train"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -40,7 +41,7 @@ __all__ = ["Run", "RunEvaluation", "TrainingDiverged", "compiled", "make_block",
 def make_data(cfg: Config, task: TaskSpec, ds: Dataset):
     """The data view cfg's algorithm trains on (for R2PAC: h-step chunks; bc-safe: safe ones)."""
     agent = make_agent(cfg, task.obs_dim, task.act_dim)
-    agent.check_data(task, ds)
+    check_data(agent, task, ds, default_cells(cfg))
     return agent.make_data(task, ds)
 
 
@@ -157,8 +158,12 @@ def diagnostic_params(cfg: Config, obs_dim: int, act_dim: int):
 
 def check_run(cfg: Config, task: TaskSpec, ds: Dataset) -> None:
     """Everything about (config, dataset) that can be refused before any training starts."""
-    check_data(make_agent(cfg, task.obs_dim, task.act_dim), task, ds,
-               Lanes.build(cfg, [0]).cell_hparams)
+    check_data(make_agent(cfg, task.obs_dim, task.act_dim), task, ds, default_cells(cfg))
+
+
+def default_cells(cfg: Config) -> list[dict]:
+    """The one cell of a run without a grid: cfg's values of its per-lane scalars."""
+    return Lanes.build(cfg, [0]).cell_hparams
 
 
 def check_data(agent, task: TaskSpec, ds: Dataset, cells: list[dict]) -> None:

@@ -12,7 +12,7 @@ from conftest import tiny_config
 from r2pac_jax.agents import MODULES, algo_module, algorithm_spec, make_agent
 from r2pac_jax.agents.per_lane import PerLane, PerLaneValue, lane_view
 from r2pac_jax.lanes import Lanes
-from r2pac_jax.loop import check_data
+from r2pac_jax.loop import check_data, make_data
 from r2pac_jax.tasks import get_task
 
 # one --algo name per module that has per-lane scalars
@@ -62,6 +62,12 @@ def test_cdt_checks_each_cells_cost_target_against_the_data(reach_avoid_data):
         assert bool(hit) == warned
         if warned:
             assert f"target_cost={outside:g}" in str(hit[0].message)
+    # the pure data view (make_train's path) checks the default cell as before
+    far = tiny_config("cdt", target_cost=outside)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        make_data(far, task, reach_avoid_data)
+    assert any(f"target_cost={outside:g}" in str(x.message) for x in w)
     # the lanes a sweep builds carry the cells' values to the check
     lanes = Lanes.build(cfg, [0], [{"target_cost": inside}, {"target_cost": outside}])
     assert [c["target_cost"] for c in lanes.cell_hparams] == [inside, outside]
