@@ -328,7 +328,11 @@ class Run:
         ckpt = Checkpointer(self.out / "checkpoints")
         state, done_blocks, resume_step = self.init_state(), 0, 0
         self.step_reached, self.last_checkpoint = 0, None
-        restored = ckpt.resume_blocks(state, log=self.log) if resume else None
+        try:
+            restored = ckpt.resume_blocks(state, log=self.log) if resume else None
+        except BaseException:  # closed here: _run's finally only holds it once _start returns
+            ckpt.close()
+            raise
         if restored is not None:
             resume_step, state, done_blocks, self.diverged = restored
             state = place(state, self.lanes.size)
