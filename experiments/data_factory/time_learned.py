@@ -3,7 +3,11 @@ few updates of a task, per (num_envs, rollout_len); the first update (compilatio
 
     python experiments/data_factory/time_learned.py --task CarGoal2 [--envs 10,20,40] [--updates 4]
 
-Prints one JSON line per setting; the per-task estimates in GENERATION.md come from these.
+Prints one JSON line per setting; the per-task estimates in GENERATION.md come from these. Each
+line also says where an update's time goes (`parts`: seconds per update and share of the
+rollout, of the simulator inside it where Python steps it, of the episode pool and its files,
+of PPO's GAE and update, and of the checkpoints, from the generation's own log) and the
+process's peak resident memory.
 """
 from __future__ import annotations
 
@@ -18,6 +22,30 @@ from pathlib import Path
 from r2pac_jax.data.dsrl import DatasetError
 from r2pac_jax.data.factory import collect
 from r2pac_jax.tasks import get_task
+
+
+PARTS = ("t_rollout", "t_physics", "t_pool", "t_update", "t_checkpoint_before")
+
+
+def breakdown(rows: list[dict]) -> dict:
+    """Mean seconds per update of each part, and its share of an update's wall (the update's
+    own time plus its share of the checkpoints, which the log's rate leaves out)."""
+    if not rows:
+        return {}
+    spu = rows[0]["env_steps"] / rows[0]["update"]  # env steps per update
+    mean = lambda k: sum(r.get(k, 0.0) for r in rows) / len(rows)  # noqa: E731
+    total = sum(spu / r["steps_per_s"] for r in rows) / len(rows) + mean("t_checkpoint_before")
+    out = {"update_s": round(total, 4)}
+    for k in PARTS:
+        if any(k in r for r in rows):  # t_physics: Python-stepped simulators only
+            out[k] = dict(s=round(mean(k), 4), share=round(mean(k) / total, 3))
+    return out
+
+
+def peak_rss_gib() -> float:
+    import resource
+
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20, 2)  # KiB on Linux
 
 
 def main() -> None:
@@ -51,6 +79,7 @@ def main() -> None:
         rates = [r["steps_per_s"] for r in rows[1:]]
         print(json.dumps(dict(task=task.name, num_envs=n, rollout_len=t_len,
                               updates=len(rows), env_steps_per_s=sum(rates) / len(rates),
+                              parts=breakdown(rows[1:]), peak_rss_gib=peak_rss_gib(),
                               first_update_s=n * t_len / rows[0]["steps_per_s"], wall_s=wall,
                               cpus=os.cpu_count(), machine=platform.machine(),
                               date=time.strftime("%Y-%m-%d %H:%M"))), flush=True)

@@ -137,6 +137,18 @@ def test_resumed_generation_equals_an_uninterrupted_one(name, kw, tmp_path):
         kw["ppo"]["num_envs"] * kw["ppo"]["rollout_len"])
     log = [json.loads(ln) for ln in part.with_suffix(".log.jsonl").read_text().splitlines()]
     assert [r["update"] for r in log] == list(range(1, card["generation"]["updates"] + 1))
+    # where each update's time went (profiling only): the parts lie within the update's wall;
+    # the simulator's share where Python steps it (C MuJoCo, pybullet), not for a JAX env; each
+    # checkpoint's time in the row after it
+    python_stepped = not task.make_env(physics=collect.make_spec(task).physics).is_jax
+    every = kw["checkpoint_every"]
+    full_log = [json.loads(ln) for ln in (tmp_path / "full.log.jsonl").read_text().splitlines()]
+    for r in full_log:
+        wall = (r["env_steps"] / r["update"]) / r["steps_per_s"]
+        assert 0 < r["t_rollout"] + r["t_pool"] + r["t_update"] <= wall + 1e-3
+        assert ("t_physics" in r) == python_stepped
+        assert r.get("t_physics", 0.0) <= r["t_rollout"]
+        assert ("t_checkpoint_before" in r) == (r["update"] > 1 and (r["update"] - 1) % every == 0)
     assert part.with_suffix(".training.png").exists() and part.with_suffix(".png").exists()
     assert not (tmp_path / "part.hdf5.partial").exists()  # cleaned up once the file exists
     # episodes are whole: each ends in a terminal or a timeout, and costs respect the cap
@@ -346,7 +358,8 @@ def test_mean_squash_recipe_value():
 
     t = get_task("SwimmerVelocity")
     assert "mean_squash" not in collect.make_spec(t).to_dict()["ppo"]
-    assert collect.make_spec(t, ppo={"mean_squash": "none"}).to_dict()["ppo"]["mean_squash"] == "none"
+    spec = collect.make_spec(t, ppo={"mean_squash": "none"})
+    assert spec.to_dict()["ppo"]["mean_squash"] == "none"
     with pytest.raises(DatasetError, match="mean_squash must be one of tanh, none"):
         collect.make_spec(t, ppo={"mean_squash": "softsign"})
     obs = 50.0 * jnp.ones((4, t.obs_dim))

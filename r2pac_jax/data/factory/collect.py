@@ -330,19 +330,24 @@ class Generation:
                        dynamic_ncols=True, smoothing=0.05)
         done_here = 0
         t_run = time.time()
+        t_checkpoint = None
         try:
             with open(self._log_file, "a") as logf:
                 while state["update"] < s.updates:
                     if stop_after is not None and done_here >= stop_after:
                         return None
                     t0 = time.time()
+                    # where an update's time goes (profiling; the data do not depend on it)
+                    parts: dict = {}
                     key, k_roll, k_upd = jax.random.split(jnp.asarray(state["key"]), 3)
                     if self.jax_rollout is not None:
                         env_state, traj = self.jax_rollout(params, env_state, k_roll)
                         traj = _numpy(traj)
                     else:
                         env_state, traj = pl.rollout_batch(self.env, self.policy, params,
-                                                           env_state, k_roll, s.ppo.rollout_len)
+                                                           env_state, k_roll, s.ppo.rollout_len,
+                                                           timing=parts)
+                    t1 = time.time()
                     kept, finished = self._split_episodes(state, traj)
                     state["pool"].extend(kept)
                     state["finished"] += len(finished)
@@ -353,8 +358,11 @@ class Generation:
                     limit = s.schedule.limit(state["env_steps"])
                     state["pid"], state["lam"] = pl.pid_multiplier(
                         state["pid"], state["last_cost"], limit, tuple(s.ppo.pid))
+                    t2 = time.time()
                     params, opt_state, m = self.update(params, opt_state, pl.as_update_batch(traj),
                                                        jnp.float32(state["lam"]), k_upd)
+                    m = jax.block_until_ready(m)
+                    t3 = time.time()
                     state["update"] += 1
                     state["key"] = np.asarray(key)
                     row = dict(update=state["update"], env_steps=state["env_steps"],
@@ -370,14 +378,26 @@ class Generation:
                                # (Swimmer) needs it to fall before the limit can be met
                                log_std=float(np.mean(np.asarray(
                                    params["actor"]["params"]["log_std"]))),
-                               steps_per_s=s.steps_per_update / (time.time() - t0))
+                               steps_per_s=s.steps_per_update / (time.time() - t0),
+                               # seconds of this update: the rollout (for a Python-stepped
+                               # simulator, t_physics of it is the simulator's), the episode
+                               # pool and its files, PPO's GAE and update (t_checkpoint_before:
+                               # the checkpoint written after the previous update)
+                               t_rollout=t1 - t0, t_pool=t2 - t1, t_update=t3 - t2)
+                    if "physics" in parts:
+                        row["t_physics"] = parts["physics"]
+                    if t_checkpoint is not None:  # the one written after the previous update
+                        row["t_checkpoint_before"], t_checkpoint = t_checkpoint, None
+                    # the row before the checkpoint: a resume drops rows past its checkpoint
                     logf.write(json.dumps(row) + "\n")
                     logf.flush()
                     done_here += 1
                     if state["update"] % s.checkpoint_every == 0 or state["update"] == s.updates:
+                        t4 = time.time()
                         state["params"], state["opt_state"] = _numpy(params), _numpy(opt_state)
                         state["env"] = _numpy(env_state)
                         self._checkpoint(state)
+                        t_checkpoint = time.time() - t4
                     if bar is not None:
                         bar.set_postfix(limit=f"{limit:.0f}", lam=f"{state['lam']:.2f}",
                                         ret=f"{state['last_return']:.1f}",

@@ -20,7 +20,8 @@ Shapes: N = num_envs, T = rollout_len, O = obs_dim, A = act_dim.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable, Sequence
+import time
+from typing import Callable, Optional, Sequence
 
 import chex
 import flax.linen as nn
@@ -257,31 +258,40 @@ TRAJ_KEYS = ("obs", "nobs", "raw", "act", "logp", "r", "c", "term", "trunc", "do
              "nvr", "nvc")
 
 
-def rollout_batch(env, policy: Callable, params, state, key, T: int):
+def rollout_batch(env, policy: Callable, params, state, key, T: int,
+                  timing: Optional[dict] = None):
     """T control steps of a batched env from Python (C MuJoCo), resetting episodes that end.
 
     Returns (state after the last step, traj {[T, N] numpy}); traj["nobs"] holds the true next
-    observations (before a reset), so GAE bootstraps time-limit cuts correctly."""
+    observations (before a reset), so GAE bootstraps time-limit cuts correctly. `timing`, where
+    given, gets the seconds spent in the simulator (steps and resets) added to its "physics"."""
     out = {k: [] for k in TRAJ_KEYS if k not in ("nvr", "nvc")}
     keys = jax.random.split(key, T)
+    t_physics = 0.0
     for t in range(T):
         k_act, k_reset = jax.random.split(keys[t])
         obs = np.asarray(state.obs)
         raw, act, logp, vr, vc = policy(params, obs, k_act)
         act = np.asarray(act)
+        t0 = time.perf_counter()
         nxt = env.step_batch(state, act)
         term, trunc = np.asarray(nxt.terminated), np.asarray(nxt.truncated)
+        t_physics += time.perf_counter() - t0
         done = term | trunc
         for k, v in (("obs", obs), ("nobs", nxt.obs), ("raw", raw), ("act", act), ("logp", logp),
                      ("r", nxt.reward), ("c", nxt.cost), ("term", term), ("trunc", trunc & ~term),
                      ("done", done), ("vr", vr), ("vc", vc)):
             out[k].append(np.asarray(v))
         if done.any():
+            t0 = time.perf_counter()
             idx = np.flatnonzero(done)
             fresh = env.reset_batch(jax.random.split(k_reset, len(done))[idx])
             nxt = put_rows(jax.tree_util.tree_map(np.asarray, nxt), idx,
                            jax.tree_util.tree_map(np.asarray, fresh))
+            t_physics += time.perf_counter() - t0
         state = nxt
+    if timing is not None:
+        timing["physics"] = timing.get("physics", 0.0) + t_physics
     traj = {k: np.stack(v) for k, v in out.items()}
     # values of the true next observations: the next step's values inside an episode; computed
     # afresh where an episode ended (its next observation is not the next step's) and at T - 1
