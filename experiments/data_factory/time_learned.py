@@ -58,8 +58,13 @@ def main() -> None:
     ap.add_argument("--rollout-len", type=int, default=None,
                     help="steps per env per update (default steps-per-update / envs; the "
                          "bullet backend needs a multiple of the episode length)")
+    ap.add_argument("--recipe", action="store_true",
+                    help="the task's own num_envs and rollout_len (the files' recipe), not --envs")
     args = ap.parse_args()
     task = get_task(args.task)
+    if args.recipe:
+        ppo = collect.make_spec(task).ppo
+        args.envs, args.rollout_len = str(ppo.num_envs), ppo.rollout_len
     for n in (int(x) for x in args.envs.split(",")):
         t_len = args.rollout_len or args.steps_per_update // n
         d = Path(tempfile.mkdtemp())

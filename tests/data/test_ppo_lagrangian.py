@@ -372,3 +372,32 @@ def test_mean_squash_recipe_value():
             params)
         mean, _ = actor.apply(params, obs)
         assert bool((jnp.abs(mean) > 1.0).any()) == beyond
+
+
+def test_assemble_fills_the_file_episode_by_episode_as_a_concatenation_would(tmp_path):
+    """The pool's episodes, in index order, into arrays of the final size (one copy in memory);
+    a pool record whose length disagrees with its episode file is refused."""
+    rng = np.random.default_rng(0)
+    (tmp_path / "episodes").mkdir()
+    pool, eps = [], []
+    for i, n in enumerate((5, 3, 7)):
+        ep = dict(observations=rng.normal(size=(n, 3)).astype(np.float32),
+                  next_observations=rng.normal(size=(n, 3)).astype(np.float32),
+                  actions=rng.normal(size=(n, 2)).astype(np.float32),
+                  rewards=rng.normal(size=n).astype(np.float32),
+                  costs=rng.normal(size=n).astype(np.float32),
+                  terminals=np.arange(n) == n - 1, timeouts=np.zeros(n, bool))
+        np.savez(tmp_path / "episodes" / f"ep-{i:07d}.npz", **ep)
+        pool.append((i, float(i), 0.0, n))
+        eps.append(ep)
+    gen = collect.Generation.__new__(collect.Generation)  # assemble reads spec and dir only
+    gen.spec = collect.make_spec(get_task("ReachAvoid"), trajectories=10, env_steps=16 * 80 * 4)
+    gen.dir = tmp_path
+    arrays, info = gen.assemble(pool[::-1])  # the pool's order does not matter: index order
+    assert info["kept"] == 3
+    for k in collect.EPISODE_KEYS:
+        want = np.concatenate([e[k] for e in eps])
+        assert arrays[k].dtype == (bool if k in ("terminals", "timeouts") else np.float32)
+        np.testing.assert_array_equal(arrays[k], want, err_msg=k)
+    with pytest.raises(DatasetError, match="episode 1 holds 3 steps, its pool record 4"):
+        gen.assemble([pool[0], (1, 1.0, 0.0, 4), pool[2]])

@@ -422,11 +422,25 @@ class Generation:
         rets = np.array([e[1] for e in pool])
         costs = np.array([e[2] for e in pool])
         keep = thin_by_density(rets, costs, s.trajectories, seed=s.seed)
-        chosen = sorted(pool[i][0] for i in keep)
-        parts = [dict(np.load(self.dir / "episodes" / f"ep-{i:07d}.npz")) for i in chosen]
-        arrays = {k: np.concatenate([p[k] for p in parts]) for k in EPISODE_KEYS}
-        for k in ("terminals", "timeouts"):
-            arrays[k] = arrays[k].astype(bool)
+        chosen = sorted((pool[i][0], pool[i][3]) for i in keep)  # (index, length)
+        # filled episode by episode into arrays of the final size: one copy of the file in
+        # memory, not two (a list of the episodes, then their concatenation)
+        total = sum(n for _, n in chosen)
+        arrays: dict = {}
+        at = 0
+        for i, n in chosen:
+            with np.load(self.dir / "episodes" / f"ep-{i:07d}.npz") as ep:
+                for k in EPISODE_KEYS:
+                    a = ep[k]
+                    if a.shape[0] != n:
+                        raise DatasetError(f"{self.dir}: episode {i} holds {a.shape[0]} steps, "
+                                           f"its pool record {n}: the pool is damaged; pass "
+                                           "--force to generate again")
+                    if k not in arrays:
+                        dtype = bool if k in ("terminals", "timeouts") else a.dtype
+                        arrays[k] = np.empty((total,) + a.shape[1:], dtype)
+                    arrays[k][at:at + n] = a
+            at += n
         return arrays, dict(pooled=len(pool), kept=len(chosen), grid="20x20 (cost, return)")
 
     def plot(self, path: Path) -> None:
