@@ -59,11 +59,14 @@ case "${1:-decide}" in
     w="${2:?confirm needs the winning candidate id}"
     tasks="$(only "$CONFIRM")" || exit 2
     for t in $tasks; do for c in 0 "$w"; do cell "$t" "$c" 3 seeds3-5; done; done ;;
-  keep)  # results.json and config.json of each finished cell; its checkpoints stay in runs/
+  keep)  # each finished cell's results, config and logs (the write-up's training diagnostics:
+    # writeup.py); its checkpoints stay in runs/
     for f in "$OUT"/*/*/*/results.json; do
       [ -f "$f" ] || continue
       d="$(dirname "$f")"; k="$KEPT/${d#"$OUT"/}"
-      mkdir -p "$k" && cp "$d/results.json" "$d/config.json" "$k/" && echo "kept $k"
+      mkdir -p "$k" && cp "$d/config.json" "$k/" || continue
+      for j in eval.jsonl metrics.jsonl; do [ -f "$d/$j" ] && cp "$d/$j" "$k/"; done
+      cp "$d/results.json" "$k/" && echo "kept $k"  # last: it marks the cell kept
     done ;;
   *) echo "usage: run.sh decide | confirm WINNER | keep" >&2; exit 2 ;;
 esac
