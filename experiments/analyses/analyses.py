@@ -82,11 +82,15 @@ def registry_value(task: str, algo: str, key: str):
     return getattr(make_config(task, algo, "quick"), key)
 
 
+def away_from_registry(task: str, algo: str, sets: dict) -> dict:
+    """The values of `sets` that differ from the registry's (sorted by key)."""
+    return {k: v for k, v in sorted(sets.items()) if registry_value(task, algo, k) != v}
+
+
 def cell_name(task: str, algo: str, sets: dict) -> str:
     """The algorithm, then each value set away from the registry's: `r2pac-chunk_len=3`. A value
     equal to the registry's names the plain cell, so it is run once."""
-    away = {k: v for k, v in sorted(sets.items()) if registry_value(task, algo, k) != v}
-    return algo + "".join(f"-{k}={v}" for k, v in away.items())
+    return algo + "".join(f"-{k}={v}" for k, v in away_from_registry(task, algo, sets).items())
 
 
 def plan(analyses=tuple(ANALYSES), tasks=None,
@@ -100,9 +104,8 @@ def plan(analyses=tuple(ANALYSES), tasks=None,
             raise AnalysesError(f"unknown analysis {a!r}; choose from {', '.join(table)}")
         for task, cells in table[a].items():
             for algo, sets in cells:
-                name = cell_name(task, algo, sets)
-                away = {k: v for k, v in sets.items() if f"-{k}=" in name}
-                out.setdefault(task, {}).setdefault(name, (algo, away))
+                out.setdefault(task, {}).setdefault(cell_name(task, algo, sets),
+                                                    (algo, away_from_registry(task, algo, sets)))
     order = {t: i for i, t in enumerate(TASK_ORDER)}
     chosen = sorted(out, key=lambda t: (order.get(t, len(order)), t))
     if tasks:
