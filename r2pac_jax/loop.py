@@ -178,6 +178,27 @@ def check_data(agent, task: TaskSpec, ds: Dataset, cells: list[dict]) -> None:
 # The run: blocks between evaluations and checkpoints
 
 
+def schedule(cfg: Config) -> list[tuple[str, int]]:
+    """(phase, step within phase after the block) for every block of a run of cfg."""
+    n = cfg.steps // cfg.block_steps
+    return [(p, (i + 1) * cfg.block_steps) for p in cfg.phases for i in range(n)]
+
+
+def evaluation_due(cfg: Config, agent, phase: str, phase_step: int, last: bool) -> bool:
+    """An evaluation follows this block: every eval_every steps of an evaluated phase, and
+    after the last block."""
+    if phase in agent.unevaluated_phases:
+        return False
+    return last or phase_step % cfg.eval_every == 0
+
+
+def count_evaluations(cfg: Config, agent) -> int:
+    """How many evaluations a run of cfg makes (its evaluation episodes each time)."""
+    blocks = schedule(cfg)
+    return sum(evaluation_due(cfg, agent, p, s, i == len(blocks) - 1)
+               for i, (p, s) in enumerate(blocks))
+
+
 class RunEvaluation:
     """A run's evaluations: when one falls due, and every lane's scores (diverged lanes: NaN,
     not run). With diagnostics the policy also reports them (R2PAC: its candidates' spread, the
@@ -202,9 +223,8 @@ class RunEvaluation:
         return None if self.evaluator is None else getattr(self.evaluator.env, "backend", "jax")
 
     def due(self, phase: str, phase_step: int, last: bool) -> bool:
-        if self.evaluator is None or phase in self.agent.unevaluated_phases:
-            return False
-        return last or phase_step % self.cfg.eval_every == 0
+        return self.evaluator is not None and evaluation_due(self.cfg, self.agent, phase,
+                                                             phase_step, last)
 
     def __call__(self, state, lanes: Lanes, step: int, diverged: dict) -> dict:
         """Every lane's evaluation at `step`: per-episode [L, episodes] and per-lane [L]."""
@@ -248,8 +268,7 @@ class Run:
     @property
     def schedule(self) -> list[tuple[str, int]]:
         """(phase, step within phase after the block) for every block of the run."""
-        n = self.cfg.steps // self.cfg.block_steps
-        return [(p, (i + 1) * self.cfg.block_steps) for p in self.cfg.phases for i in range(n)]
+        return schedule(self.cfg)
 
     def init_state(self):
         return place(self._init(self.lanes.init_keys(), self.lanes.hp), self.lanes.size)

@@ -11,7 +11,8 @@ another preset or other data is refused, and so is a table whose tasks mix data 
 Writes DIR/table.md (`report.results_table`: safe bold, best and second-best safe reward
 marked, unsafe marked with a dagger, per-family averages), DIR/table.csv and DIR/table.png
 (normalised reward against cost, a panel per task). `--estimate` times one compiled block of
-every algorithm on the first task and prints the wall estimate, then stops.
+every algorithm on the first task and each cell's evaluation policy, prints the wall estimate
+and stops, making no data file (a task without one is timed on a stand-in of its shapes).
 
 A table made in pieces (sessions, machines, a second directory beside a running one):
 `--merge-from SRC` first brings SRC's finished cells and its manifest's tasks into DIR (same
@@ -241,22 +242,50 @@ def merge_from(out: Path, src: Path, args, log) -> int:
 
 
 def estimate(tasks, algos, args, ds_of, log) -> float:
-    """Seconds of training for the whole table, from one timed block per algorithm on the first
-    task (evaluation excluded; the environment steps of 2 x episodes x seeds come on top)."""
-    from r2pac_jax.loop import time_block
+    """Seconds for the whole table on this machine: training from one timed block per algorithm
+    on the first task, plus each cell's evaluations' policy time (one timed step of its seeds x
+    episodes, x the episode length x the evaluations; the simulator's steps come on top). A
+    task without a file on this machine is timed on a stand-in of its shapes (`--estimate`
+    makes no file)."""
+    from r2pac_jax.evaluate import time_policy_step
+    from r2pac_jax.loop import count_evaluations, time_block
 
-    task = tasks[0]
-    ds = ds_of(task)
     total = 0.0
-    for a, cfg in _configs(task, algos, args).items():
-        per_step = 1.0 / time_block(cfg, task, ds, cfg.seeds, blocks=1)["steps_per_s"]
+    for a, cfg in _configs(tasks[0], algos, args).items():
+        per_step = 1.0 / time_block(cfg, tasks[0], ds_of(tasks[0]), cfg.seeds,
+                                    blocks=1)["steps_per_s"]
         secs = per_step * cfg.total_steps * len(tasks)
-        log(f"{a}: {1 / per_step:.1f} steps/s ({cfg.seeds} seeds vmapped) x {cfg.total_steps} "
-            f"steps x {len(tasks)} task(s) ~ {secs / 60:.1f} min")
+        log(f"{a}: training {1 / per_step:.1f} steps/s ({cfg.seeds} seeds vmapped) x "
+            f"{cfg.total_steps} steps x {len(tasks)} task(s) ~ {secs / 60:.1f} min")
         total += secs
-    log(f"training in all ~ {total / 3600:.2f} h on this machine (evaluation and compilation "
-        "on top)")
+    for t in tasks:
+        for a, cfg in _configs(t, algos, args).items():
+            if cfg.eval_episodes < 1:
+                continue
+            from r2pac_jax.agents import make_agent
+
+            n_eval = count_evaluations(cfg, make_agent(cfg, t.obs_dim, t.act_dim))
+            step = time_policy_step(cfg, t, cfg.seeds, cfg.eval_episodes)
+            secs = step * t.episode_len * n_eval
+            log(f"{t.name} {a}: evaluation's policy {step * 1e3:.1f} ms per step ({cfg.seeds} "
+                f"seeds x {cfg.eval_episodes} episodes) x {t.episode_len} steps x {n_eval} "
+                f"evaluation(s) ~ {secs / 60:.1f} min")
+            total += secs
+    log(f"in all ~ {total / 3600:.2f} h on this machine (the simulator's steps in evaluation "
+        "and compilation on top)")
     return total
+
+
+def estimate_data(task, log):
+    """The task's file where the machine has one, else a stand-in of its shapes (announced)."""
+    from r2pac_jax.data import find_task_file, load_dsrl, stand_in_dataset
+
+    path = find_task_file(task)
+    if path is not None:
+        return load_dsrl(path, task.obs_dim, task.act_dim, task.name)
+    log(f"{task.name}: no data file on this machine; timed on a stand-in of its shapes (random "
+        f"values, 20 episodes of {task.episode_len} steps): --estimate makes no file")
+    return stand_in_dataset(task)
 
 
 def finished_cells(out: Path, manifest: dict, algos, skip=()) -> dict:
@@ -373,7 +402,7 @@ def main(argv=None) -> int:
             return loaded[task.name]
 
         if args.estimate:
-            estimate(tasks, algos, args, ds_of, log)
+            estimate(tasks, algos, args, lambda t: estimate_data(t, log), log)
             return 0
         claim_directory(out, "table", legacy=is_legacy_table)
         datasets = {}

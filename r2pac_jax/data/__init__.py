@@ -8,7 +8,41 @@ from r2pac_jax.data.dsrl import (Dataset, DatasetError, dsrl_dirs, find_dsrl_fil
 from r2pac_jax.tasks import TaskSpec
 
 __all__ = ["Dataset", "DatasetError", "find_dsrl_file", "load_dsrl", "write_dsrl",
-           "load_task_dataset"]
+           "load_task_dataset", "find_task_file", "stand_in_dataset"]
+
+
+def find_task_file(task: TaskSpec):
+    """The file `load_task_dataset` would read without making one: a DSRL file, else a learned
+    file made earlier, else a scripted one; None where the machine has none."""
+    from r2pac_jax.data import factory
+
+    for find in (find_dsrl_file, factory.find_learned, factory.find_cached):
+        path = find(task)
+        if path is not None:
+            return path
+    return None
+
+
+def stand_in_dataset(task: TaskSpec, episodes: int = 20, seed: int = 0) -> Dataset:
+    """Random values in the task's shapes, whole episodes of its length ending at the time limit:
+    a stand-in for timing (a compiled step's speed does not depend on the values), never for
+    training. Costs are 0/1 with probability 0.1."""
+    import numpy as np
+
+    from r2pac_jax.data.dsrl import validate
+
+    rng = np.random.default_rng(seed)
+    n, T = episodes, task.episode_len
+    obs = rng.normal(size=(n, T + 1, task.obs_dim)).astype(np.float32)
+    timeouts = np.zeros((n, T), bool)
+    timeouts[:, -1] = True
+    arrays = dict(observations=obs[:, :-1].reshape(n * T, -1),
+                  next_observations=obs[:, 1:].reshape(n * T, -1),
+                  actions=rng.uniform(-1, 1, (n * T, task.act_dim)).astype(np.float32),
+                  rewards=rng.normal(size=n * T).astype(np.float32),
+                  costs=(rng.uniform(size=n * T) < 0.1).astype(np.float32),
+                  terminals=np.zeros(n * T, bool), timeouts=timeouts.reshape(-1))
+    return validate(arrays, f"stand-in for {task.name}", task.obs_dim, task.act_dim, task.name)
 
 
 def _generate_learned(task: TaskSpec, announce: Callable[[str], None],

@@ -220,3 +220,41 @@ def test_results_only_merges_keep_every_source_task_and_copy_two_files(tmp_path,
     capsys.readouterr()
     assert main(only) == 2  # --results-only without --merge-from: refused, named
     assert "give --merge-from SRC too" in capsys.readouterr().err
+
+
+def test_estimate_makes_no_file_and_counts_the_evaluation_policy(data_dir, tmp_path, capsys):
+    """--estimate on a task without data on the machine: timed on a stand-in of its shapes,
+    nothing generated, nothing written; a line per cell for its evaluation's policy."""
+    out = tmp_path / "table"
+    assert main(["--tasks", "BallRun", "--algos", "cdt", "--seeds", "2",
+                 "--episodes", "2", "--steps", "10", "--out", str(out), "--estimate",
+                 "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "BallRun: no data file on this machine; timed on a stand-in" in text
+    assert "BallRun cdt: evaluation's policy" in text and "x 100 steps x 1 evaluation(s)" in text
+    assert "cdt: training" in text and "in all ~" in text  # CDT: a policy with memory
+    assert not out.exists()
+    assert not list(data_dir.rglob("*.hdf5"))
+
+
+def test_a_run_makes_as_many_evaluations_as_counted(tiny_run):
+    from r2pac_jax.agents import make_agent
+    from r2pac_jax.loop import count_evaluations
+    from r2pac_jax.policy import read_run
+    from r2pac_jax.tasks import get_task
+
+    cfg, _ = read_run(tiny_run["run"])
+    t = get_task(cfg.task)
+    rows = [json.loads(ln) for ln in (tiny_run["run"] / "eval.jsonl").open()]
+    assert count_evaluations(cfg, make_agent(cfg, t.obs_dim, t.act_dim)) == len(
+        {r["step"] for r in rows}) == 2  # the actor phase's 10 and 20 (steps 30 and 40)
+
+
+def test_stand_in_dataset_has_the_tasks_shapes_and_whole_episodes():
+    from r2pac_jax.data import stand_in_dataset
+    from r2pac_jax.tasks import get_task
+
+    t = get_task("BallRun")
+    ds = stand_in_dataset(t, episodes=3)
+    assert ds.observations.shape == (300, t.obs_dim) and ds.actions.shape == (300, t.act_dim)
+    assert ds.timeouts.sum() == 3 and ds.timeouts[99] and not ds.terminals.any()
