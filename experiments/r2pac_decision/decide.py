@@ -16,6 +16,7 @@ import math
 import statistics
 import sys
 from pathlib import Path
+from typing import Optional
 
 DECISION_TASKS = ("HalfCheetahVelocity", "Walker2dVelocity", "HopperVelocity", "BallRun",
                   "DroneRun", "CarGoal2", "PointGoal2")
@@ -74,6 +75,26 @@ def read_scores(root: Path, seeds: str, tasks, cands) -> tuple[dict, list]:
 
 
 MANIFEST = Path(__file__).resolve().parents[1] / "table1" / "cpu-quick" / "manifest.json"
+# PROTOCOL.md: a task whose file does not regenerate bit for bit is left out, the bar scaled to
+# the tasks left. Each entry: {task: why} (the digests, the machine), written when it happens.
+LEFT_OUT = Path(__file__).with_name("left_out.json")
+
+
+def left_out(path: Optional[Path] = None) -> dict[str, str]:
+    """The decision tasks left out, with why ({} where none is)."""
+    path = LEFT_OUT if path is None else path
+    if not path.is_file():
+        return {}
+    out = json.loads(path.read_text())
+    unknown = [t for t in out if t not in DECISION_TASKS]
+    if unknown:
+        raise ValueError(f"{path}: {', '.join(unknown)} is not a decision task")
+    return out
+
+
+def tasks_left(tasks, path: Optional[Path] = None) -> tuple:
+    gone = left_out(path)
+    return tuple(t for t in tasks if t not in gone)
 
 
 def pin(task: str) -> dict:
@@ -130,21 +151,24 @@ def main(argv=None) -> int:
         print(path)
         return 0
     root = Path(args.runs)
-    scores, missing = read_scores(root, "seeds0-2", DECISION_TASKS, CANDIDATES)
+    gone = left_out()
+    for t, why in gone.items():
+        print(f"{t}: left out of the decision ({why})")
+    tasks, conf_tasks = tasks_left(DECISION_TASKS), tasks_left(CONFIRMATION_TASKS)
+    scores, missing = read_scores(root, "seeds0-2", tasks, CANDIDATES)
     if missing:
         print(f"{len(missing)} decision cells missing (no verdict): {', '.join(missing)}")
         return 1
-    verdict = decide(scores)
-    out = dict(decision=verdict, scores={c: {t: list(v) for t, v in s.items()}
-                                         for c, s in scores.items()})
+    verdict = decide(scores, tasks)
+    out = dict(decision=verdict, tasks=list(tasks), left_out=gone,
+               scores={c: {t: list(v) for t, v in s.items()} for c, s in scores.items()})
     print(json.dumps(verdict, indent=1))
     if verdict["winner"] is not None:
-        conf, missing = read_scores(root, "seeds3-5", CONFIRMATION_TASKS,
-                                    ("0", verdict["winner"]))
+        conf, missing = read_scores(root, "seeds3-5", conf_tasks, ("0", verdict["winner"]))
         if missing:
             print(f"confirmation: {len(missing)} cells missing: {', '.join(missing)}")
         else:
-            out["confirmation"] = confirm(conf, verdict["winner"])
+            out["confirmation"] = confirm(conf, verdict["winner"], conf_tasks)
             out["confirmation_scores"] = {c: {t: list(v) for t, v in s.items()}
                                           for c, s in conf.items()}
             print(json.dumps(out["confirmation"], indent=1))

@@ -54,11 +54,19 @@ cell() {  # task, candidate, seed offset, seeds label
 case "${1:-decide}" in
   decide)
     tasks="$(only "$DECISION")" || exit 2
-    for t in $tasks; do for c in 0 a b c; do cell "$t" "$c" 0 seeds0-2; done; done ;;
+    for t in $tasks; do
+      if grep -q "\"$t\"" experiments/r2pac_decision/left_out.json 2>/dev/null; then
+        echo "== $t: left out of the decision (left_out.json)"; continue
+      fi
+      for c in 0 a b c; do cell "$t" "$c" 0 seeds0-2; done
+    done ;;
   confirm)
     w="${2:?confirm needs the winning candidate id}"
     tasks="$(only "$CONFIRM")" || exit 2
-    for t in $tasks; do for c in 0 "$w"; do cell "$t" "$c" 3 seeds3-5; done; done ;;
+    for t in $tasks; do
+      grep -q "\"$t\"" experiments/r2pac_decision/left_out.json 2>/dev/null && continue
+      for c in 0 "$w"; do cell "$t" "$c" 3 seeds3-5; done
+    done ;;
   keep)  # each finished cell's results, config and logs (the write-up's training diagnostics:
     # writeup.py); its checkpoints stay in runs/
     for f in "$OUT"/*/*/*/results.json; do

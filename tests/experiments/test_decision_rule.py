@@ -1,5 +1,7 @@
 """experiments/r2pac_decision/decide.py applies PROTOCOL.md's rule as written: checked here on
 made-up scores before any decision run exists."""
+import json
+
 import pytest
 from conftest import load_script
 
@@ -100,3 +102,36 @@ def test_precision_rule_is_two_float32_stds_without_a_floor():
     assert got == {("default", "reward"): True, ("default", "cost"): True,
                    ("bf16", "reward"): True, ("bf16", "cost"): True,
                    ("highest", "reward"): False, ("highest", "cost"): False}
+
+
+def test_a_task_left_out_is_read_from_its_record_and_refused_when_unknown(tmp_path):
+    rec = tmp_path / "left_out.json"
+    assert decide.left_out(rec) == {} and decide.tasks_left(TASKS, rec) == TASKS
+    rec.write_text('{"Walker2dVelocity": "did not regenerate"}')
+    left = decide.tasks_left(TASKS, rec)
+    assert "Walker2dVelocity" not in left and len(left) == 6
+    assert decide.qualifies(_scores(BASE), "a", left)[1]["needed"] == 5
+    rec.write_text('{"AntCircle": "x"}')
+    with pytest.raises(ValueError, match="AntCircle is not a decision task"):
+        decide.left_out(rec)
+
+
+def test_the_verdict_is_taken_on_the_tasks_left(tmp_path, monkeypatch, capsys):
+    """main(): the left-out task's cells are not asked for; the bar is 5 of the 6 left."""
+    mod = load_script("experiments/r2pac_decision/decide.py", "decide_main")
+    rec = tmp_path / "left_out.json"
+    rec.write_text('{"Walker2dVelocity": "did not regenerate"}')
+    monkeypatch.setattr(mod, "LEFT_OUT", rec)
+    root = tmp_path / "cells"
+    for t in mod.tasks_left(mod.DECISION_TASKS, rec):
+        for c, r in (("0", 0.1), ("a", 0.3), ("b", 0.1), ("c", 0.1)):
+            d = root / "seeds0-2" / t / c
+            d.mkdir(parents=True)
+            (d / "results.json").write_text(json.dumps(dict(
+                normalized_reward=dict(mean=r), normalized_cost=dict(mean=0.5))))
+    out = tmp_path / "decision.json"
+    assert mod.main(["--runs", str(root), "--out", str(out)]) == 0
+    got = json.loads(out.read_text())
+    assert got["decision"]["winner"] == "a" and "Walker2dVelocity" not in got["tasks"]
+    assert got["decision"]["candidates"]["a"]["needed"] == 5
+    assert "Walker2dVelocity: left out of the decision" in capsys.readouterr().out
