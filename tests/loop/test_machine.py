@@ -10,14 +10,19 @@ from conftest import load_script
 
 def test_describe_counts_the_cores_this_process_may_use():
     d = describe()
-    assert set(d) == {"cpu", "cpus", "arch"}
+    assert set(d) == {"cpu", "cpu_model", "isa", "cpus", "arch", "libc"}
     assert d["cpus"] == len(os.sched_getaffinity(0))
     assert d["cpu"] and d["arch"]
+    with open("/proc/cpuinfo") as f:  # the first CPU's flags, as far as the record names them
+        flags = set(next(ln for ln in f if ln.startswith("flags")).split(":", 1)[1].split())
+    assert d["isa"] == [x for x in ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512vl",
+                                    "avx512_bf16", "amx_tile") if x in flags]
+    assert d["cpu_model"].startswith("family ") and d["libc"].startswith("glibc")
 
 
 def test_record_adds_what_a_timing_hangs_on():
     r = record()
-    assert {k: r[k] for k in ("cpu", "cpus", "arch")} == describe()
+    assert {k: r[k] for k in describe()} == describe()
     assert r["jax"] == jax.__version__ and r["backend"] == jax.default_backend()
     assert len(r["date"]) == len("2026-12-06 05:45") and r["load_avg"] >= 0
 
