@@ -208,39 +208,6 @@ class LaneEvaluator:
         return out
 
 
-def time_policy_step(cfg, task: TaskSpec, lanes: int, episodes: int, calls: int = 3) -> float:
-    """Seconds of one evaluation step's policy for `lanes` x `episodes` states (as an evaluation
-    calls it: jitted, vmapped over lanes; a memory policy's act and observe), freshly
-    initialised networks (the time does not depend on training); the median of `calls` calls
-    after a compiling one. The simulator's step comes on top."""
-    import time
-
-    from r2pac_jax.lanes import Lanes
-    from r2pac_jax.loop import compiled
-
-    agent, init, _, policy_params = compiled(cfg, task.obs_dim, task.act_dim)
-    ln = Lanes.build(cfg, list(range(lanes)))
-    pp = policy_params(init(ln.init_keys(), ln.hp), ln.hp)
-    pol = _stepper(policy_of(agent))
-    obs = jnp.zeros((lanes, episodes, task.obs_dim), jnp.float32)
-    zeros = jnp.zeros((lanes, episodes), jnp.float32)
-    mem = jax.jit(jax.vmap(pol.init))(pp, obs)
-    keys = jax.random.split(jax.random.PRNGKey(0), lanes)
-
-    @jax.jit
-    def step(pp, obs, keys, mem):
-        action, mem, _ = jax.vmap(pol.step)(pp, obs, keys, mem)
-        return action, jax.vmap(pol.observe)(pp, mem, zeros, zeros)
-
-    jax.block_until_ready(step(pp, obs, keys, mem))
-    times = []
-    for _ in range(max(calls, 1)):
-        t0 = time.perf_counter()
-        jax.block_until_ready(step(pp, obs, keys, mem))
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
-
-
 def evaluate(policy_fn: Callable, params, task, episodes: int = 20,
              key: Optional[jax.Array] = None, env=None, physics: str = "auto") -> dict:
     """Evaluate one policy: `returns[E]`, `costs[E]`, `lengths[E]`, normalised reward and cost."""

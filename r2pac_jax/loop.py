@@ -101,6 +101,36 @@ def time_block(cfg: Config, task: TaskSpec, ds: Dataset, lanes: int, blocks: int
                 seed_steps_per_s=lanes * cfg.block_steps / dt, compile_s=compile_s)
 
 
+def time_policy_step(cfg, task: TaskSpec, lanes: int, episodes: int, calls: int = 3) -> float:
+    """Seconds of one evaluation step's policy for `lanes` x `episodes` states (as an evaluation
+    calls it: jitted, vmapped over lanes; a memory policy's act and observe), freshly
+    initialised networks (the time does not depend on training); the median of `calls` calls
+    after a compiling one. The simulator's step comes on top."""
+    from r2pac_jax.evaluate import _stepper, policy_of
+
+    agent, init, _, policy_params = compiled(cfg, task.obs_dim, task.act_dim)
+    ln = Lanes.build(cfg, list(range(lanes)))
+    pp = policy_params(init(ln.init_keys(), ln.hp), ln.hp)
+    pol = _stepper(policy_of(agent))
+    obs = jnp.zeros((lanes, episodes, task.obs_dim), jnp.float32)
+    zeros = jnp.zeros((lanes, episodes), jnp.float32)
+    mem = jax.jit(jax.vmap(pol.init))(pp, obs)
+    keys = jax.random.split(jax.random.PRNGKey(0), lanes)
+
+    @jax.jit
+    def step(pp, obs, keys, mem):
+        action, mem, _ = jax.vmap(pol.step)(pp, obs, keys, mem)
+        return action, jax.vmap(pol.observe)(pp, mem, zeros, zeros)
+
+    jax.block_until_ready(step(pp, obs, keys, mem))
+    times = []
+    for _ in range(max(calls, 1)):
+        t0 = time.perf_counter()
+        jax.block_until_ready(step(pp, obs, keys, mem))
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
 def make_train(cfg: Config, data, obs_dim: int, act_dim: int):
     """A pure `train(key, hp=None) -> (state, {phase: metrics[n_blocks]})`.
 

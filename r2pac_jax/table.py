@@ -247,8 +247,7 @@ def estimate(tasks, algos, args, ds_of, log) -> float:
     episodes, x the episode length x the evaluations; the simulator's steps come on top). A
     task without a file on this machine is timed on a stand-in of its shapes (`--estimate`
     makes no file)."""
-    from r2pac_jax.evaluate import time_policy_step
-    from r2pac_jax.loop import count_evaluations, time_block
+    from r2pac_jax.loop import count_evaluations, time_block, time_policy_step
 
     total = 0.0
     for a, cfg in _configs(tasks[0], algos, args).items():

@@ -1,6 +1,7 @@
 """The Table-1 command (r2pac_jax/table.py) and the table's marking rules (report.results_table)."""
 import json
 
+import pytest
 
 from r2pac_jax.report import results_table
 from r2pac_jax.table import data_version, main
@@ -222,6 +223,7 @@ def test_results_only_merges_keep_every_source_task_and_copy_two_files(tmp_path,
     assert "give --merge-from SRC too" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # times CDT's compiled block and planner (python -m pytest -m slow)
 def test_estimate_makes_no_file_and_counts_the_evaluation_policy(data_dir, tmp_path, capsys):
     """--estimate on a task without data on the machine: timed on a stand-in of its shapes,
     nothing generated, nothing written; a line per cell for its evaluation's policy."""
@@ -234,6 +236,18 @@ def test_estimate_makes_no_file_and_counts_the_evaluation_policy(data_dir, tmp_p
     assert "BallRun cdt: evaluation's policy" in text and "x 100 steps x 1 evaluation(s)" in text
     assert "cdt: training" in text and "in all ~" in text  # CDT: a policy with memory
     assert not out.exists()
+    assert not list(data_dir.rglob("*.hdf5"))
+
+
+def test_estimate_data_is_a_stand_in_where_the_machine_has_no_file(data_dir):
+    """--estimate's data: never generated (a fresh machine would otherwise start hours of
+    generation), a stand-in of the task's shapes, announced."""
+    from r2pac_jax.table import estimate_data
+    from r2pac_jax.tasks import get_task
+
+    said = []
+    ds = estimate_data(get_task("BallRun"), said.append)
+    assert ds.observations.shape[1] == get_task("BallRun").obs_dim and "stand-in" in said[0]
     assert not list(data_dir.rglob("*.hdf5"))
 
 

@@ -75,6 +75,7 @@ def chain(tiny_run, tmp_path_factory):
     return dict(t=t, runs=runs, kept=kept, maps=maps, cells=cells, status=status, log=log)
 
 
+@pytest.mark.slow  # trains a tiny run end to end (python -m pytest -m slow)
 def test_the_chain_keeps_each_cell_and_maps_the_task(chain):
     assert chain["status"] == {"r2pac": "kept", "r2pac-no-penalty": "kept"}
     for name in chain["cells"]:
@@ -88,6 +89,7 @@ def test_the_chain_keeps_each_cell_and_maps_the_task(chain):
     assert (chain["maps"] / "ReachAvoid.png").is_file()
 
 
+@pytest.mark.slow  # trains a tiny run end to end (python -m pytest -m slow)
 def test_a_kept_cell_is_never_trained_again(chain, monkeypatch):
     import r2pac_jax.train
 
@@ -99,6 +101,7 @@ def test_a_kept_cell_is_never_trained_again(chain, monkeypatch):
     assert set(st.values()) == {"finished earlier"}
 
 
+@pytest.mark.slow  # trains a tiny run end to end (python -m pytest -m slow)
 def test_reports_read_the_kept_cells(chain, tmp_path):
     kept = tmp_path / "kept"
     src = chain["kept"] / "ReachAvoid"

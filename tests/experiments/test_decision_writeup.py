@@ -4,6 +4,8 @@ import json
 import shutil
 import statistics
 
+import pytest
+
 from conftest import load_script
 
 wu = load_script("experiments/r2pac_decision/writeup.py", "writeup_under_test")
@@ -39,6 +41,7 @@ def test_tables_read_each_kept_cell_and_name_what_is_missing(tiny_run, tmp_path)
     assert f"| {vc_min:.3g} |" in train and f"| {corr:.3g} |" in train
 
 
+@pytest.mark.slow  # three re-evaluations end to end (python -m pytest -m slow)
 def test_selection_rules_are_kept_beside_the_baseline_cell(tiny_run, tmp_path):
     root, runs = tmp_path / "cells", tmp_path / "runs"
     _keep(tiny_run["run"], root / "seeds0-2" / "T" / "0")
