@@ -247,12 +247,13 @@ def estimate(tasks, algos, args, ds_of, log) -> float:
     episodes, x the episode length x the evaluations; the simulator's steps come on top). A
     task without a file on this machine is timed on a stand-in of its shapes (`--estimate`
     makes no file)."""
+    from r2pac_jax.agents import make_agent
     from r2pac_jax.loop import count_evaluations, time_block, time_policy_step
 
     total = 0.0
+    ds = ds_of(tasks[0])  # read (or stood in for) once, not once per algorithm
     for a, cfg in _configs(tasks[0], algos, args).items():
-        per_step = 1.0 / time_block(cfg, tasks[0], ds_of(tasks[0]), cfg.seeds,
-                                    blocks=1)["steps_per_s"]
+        per_step = 1.0 / time_block(cfg, tasks[0], ds, cfg.seeds, blocks=1)["steps_per_s"]
         secs = per_step * cfg.total_steps * len(tasks)
         log(f"{a}: training {1 / per_step:.1f} steps/s ({cfg.seeds} seeds vmapped) x "
             f"{cfg.total_steps} steps x {len(tasks)} task(s) ~ {secs / 60:.1f} min")
@@ -261,8 +262,6 @@ def estimate(tasks, algos, args, ds_of, log) -> float:
         for a, cfg in _configs(t, algos, args).items():
             if cfg.eval_episodes < 1:
                 continue
-            from r2pac_jax.agents import make_agent
-
             n_eval = count_evaluations(cfg, make_agent(cfg, t.obs_dim, t.act_dim))
             step = time_policy_step(cfg, t, cfg.seeds, cfg.eval_episodes)
             secs = step * t.episode_len * n_eval
@@ -279,9 +278,9 @@ def estimate_data(task, log):
     """The task's file where the machine has one, else a stand-in of its shapes (announced)."""
     from r2pac_jax.data import find_task_file, load_dsrl, stand_in_dataset
 
-    path = find_task_file(task)
-    if path is not None:
-        return load_dsrl(path, task.obs_dim, task.act_dim, task.name)
+    found = find_task_file(task)
+    if found is not None:
+        return load_dsrl(found[1], task.obs_dim, task.act_dim, task.name)
     log(f"{task.name}: no data file on this machine; timed on a stand-in of its shapes (random "
         f"values, 20 episodes of {task.episode_len} steps): --estimate makes no file")
     return stand_in_dataset(task)

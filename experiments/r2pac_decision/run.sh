@@ -24,6 +24,9 @@ only() {  # the tasks of list $1 that TASKS names (all of them where TASKS is un
   done
   echo "$out"
 }
+left_out() {  # the task is in left_out.json (decide.py's record of tasks left out)
+  grep -q "\"$1\"" experiments/r2pac_decision/left_out.json 2>/dev/null
+}
 sets_of() {
   case "$1" in
     0) echo "" ;;
@@ -55,7 +58,7 @@ case "${1:-decide}" in
   decide)
     tasks="$(only "$DECISION")" || exit 2
     for t in $tasks; do
-      if grep -q "\"$t\"" experiments/r2pac_decision/left_out.json 2>/dev/null; then
+      if left_out "$t"; then
         echo "== $t: left out of the decision (left_out.json)"; continue
       fi
       for c in 0 a b c; do cell "$t" "$c" 0 seeds0-2; done
@@ -64,7 +67,7 @@ case "${1:-decide}" in
     w="${2:?confirm needs the winning candidate id}"
     tasks="$(only "$CONFIRM")" || exit 2
     for t in $tasks; do
-      grep -q "\"$t\"" experiments/r2pac_decision/left_out.json 2>/dev/null && continue
+      left_out "$t" && continue
       for c in 0 "$w"; do cell "$t" "$c" 3 seeds3-5; done
     done ;;
   keep)  # each finished cell's results, config and logs (the write-up's training diagnostics:

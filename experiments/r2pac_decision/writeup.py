@@ -124,6 +124,7 @@ def tables(root: Path) -> str:
 def add_selection(root: Path, runs: Path, episodes: int = 20, log=print) -> list[str]:
     """selection.json beside each kept baseline cell whose run is under `runs` (same layout)."""
     from r2pac_jax.evaluate import evaluate_run, selection_rules
+    from r2pac_jax.io import atomic_write_json
 
     done = []
     for task, by in cell_dirs(root).items():
@@ -133,14 +134,9 @@ def add_selection(root: Path, runs: Path, episodes: int = 20, log=print) -> list
             continue
         rules = selection_rules(run)
         res = {r: evaluate_run(run, episodes, r) for r in rules}
-        plain = {r: {k: (v.tolist() if hasattr(v, "tolist") else
-                         {kk: vv.tolist() if hasattr(vv, "tolist") else vv
-                          for kk, vv in v.items()} if isinstance(v, dict) else v)
-                     for k, v in out.items()} for r, out in res.items()}
-        from r2pac_jax.io import atomic_write_json
-
+        # atomic_write_json writes the arrays as lists
         atomic_write_json(d / "selection.json", dict(trained=rules[0], episodes=episodes,
-                                                      seed=123, results=plain))
+                                                      seed=123, results=res))
         log(f"{task}: selection rules kept in {d / 'selection.json'}")
         done.append(task)
     return done

@@ -12,14 +12,16 @@ __all__ = ["Dataset", "DatasetError", "find_dsrl_file", "load_dsrl", "write_dsrl
 
 
 def find_task_file(task: TaskSpec):
-    """The file `load_task_dataset` would read without making one: a DSRL file, else a learned
-    file made earlier, else a scripted one; None where the machine has none."""
+    """The file `load_task_dataset` reads where it makes none: (kind, path) of a DSRL file
+    ("dsrl"), else a learned file made earlier ("learned"), else a scripted one ("scripted");
+    None where the machine has none."""
     from r2pac_jax.data import factory
 
-    for find in (find_dsrl_file, factory.find_learned, factory.find_cached):
+    for kind, find in (("dsrl", find_dsrl_file), ("learned", factory.find_learned),
+                       ("scripted", factory.find_cached)):
         path = find(task)
         if path is not None:
-            return path
+            return kind, path
     return None
 
 
@@ -87,18 +89,14 @@ def load_task_dataset(task: TaskSpec, dataset: Optional[str] = None,
     if dataset:
         announce(f"dataset: {dataset} (--dataset)")
         return load_dsrl(dataset, **kw)
-    path = find_dsrl_file(task)
-    if path is not None:
-        announce(f"dataset: {path} (DSRL file)")
-        return load_dsrl(path, **kw)
-    path = factory.find_learned(task)
-    if path is not None:
-        announce(f"dataset: {path} (learned behaviour, generated earlier; see its .json card)")
-        return load_dsrl(path, **kw)
-    path = factory.find_cached(task)
-    if path is not None:
-        announce(f"dataset: {path} (generated earlier, see its .json card)")
-        if factory.learned_by_default(task):
+    found = find_task_file(task)
+    if found is not None:
+        kind, path = found
+        announce(f"dataset: {path} " + {
+            "dsrl": "(DSRL file)",
+            "learned": "(learned behaviour, generated earlier; see its .json card)",
+            "scripted": "(generated earlier, see its .json card)"}[kind])
+        if kind == "scripted" and factory.learned_by_default(task):
             announce(f"warning: {path.name} is scripted (data v1) data, whose safe trajectories "
                      "an observation-based learner cannot imitate (experiments/data_factory/"
                      "QUALITY_BAR.md); the learned data: python -m r2pac_jax.data make --task "
