@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import chex
 import jax
+import jax.numpy as jnp
 from flax import struct
 
 from r2pac_jax.data import chunks, transitions
@@ -175,6 +176,22 @@ class TransitionAlgorithm(ChunkAlgorithm):
 
     def sample(self, data: transitions.TransitionData, key: jax.Array):
         return transitions.sample(data, key, self.cfg.batch_size)
+
+
+class TanhMeanPolicy:
+    """Mixin of the OSRL ports whose actor is a squashed Gaussian (CPQ, COptiDICE): evaluation
+    acts deterministically with tanh of its mean, as OSRL's `act(deterministic=True)` does.
+    Needs `self.actor_net` (apply -> (mu, log_std)) and a state with params["actor"]."""
+
+    def policy_params(self, state, hp: dict) -> dict:
+        return {"actor": state.params["actor"]}
+
+    def act(self, pp: dict, obs: jax.Array, key: jax.Array) -> jax.Array:
+        """Deterministic: obs [B, obs_dim] -> tanh(mu(obs)) [B, act_dim]; key unused."""
+        del key
+        check_obs(obs, self.obs_dim)
+        mu, _ = self.actor_net.apply(pp["actor"], obs)
+        return check_act(obs, jnp.tanh(mu), self.obs_dim, self.act_dim)
 
 
 def check_choice(name: str, value, choices) -> None:

@@ -29,9 +29,9 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, check_choice,
-                                   check_counts, check_lane_hparams, check_obs, check_positive,
-                                   check_sizes, cost_limit_task_values, osrl_presets)
+from r2pac_jax.agents.base import (TanhMeanPolicy, TransitionAlgorithm, actor_only, check_choice,
+                                   check_counts, check_lane_hparams, check_positive, check_sizes,
+                                   cost_limit_task_values, osrl_presets)
 from r2pac_jax.agents.constraints import q_threshold
 from r2pac_jax.agents.spec import AlgorithmSpec
 from r2pac_jax.data.transitions import DONE_RULES, TransitionBatch, TransitionData
@@ -126,7 +126,7 @@ class COptiDICEState:
     key: jax.Array
 
 
-class Agent(TransitionAlgorithm):
+class Agent(TanhMeanPolicy, TransitionAlgorithm):
     plot_metrics = ("loss_nu", "loss_chi", "loss_actor", "lmbda")
 
     def __init__(self, cfg, obs_dim: int, act_dim: int):
@@ -241,16 +241,6 @@ class Agent(TransitionAlgorithm):
         metrics.update(loss_nu=l_nu, td_error=td, loss_lmbda=l_lmbda, loss_actor=l_actor,
                        lmbda=lmbda, weighted_cost=weighted_c, qc_thres=qc_thres)
         return state.replace(params=p, opt=opt, step=state.step + 1, key=key), metrics
-
-    def policy_params(self, state: COptiDICEState, hp: dict) -> dict:
-        return {"actor": state.params["actor"]}
-
-    def act(self, pp: dict, obs: jax.Array, key: jax.Array) -> jax.Array:
-        """Deterministic: obs [B, obs_dim] -> tanh(mu(obs)) [B, act_dim]; key unused."""
-        del key
-        check_obs(obs, self.obs_dim)
-        mu, _ = self.actor_net.apply(pp["actor"], obs)
-        return check_act(obs, jnp.tanh(mu), self.obs_dim, self.act_dim)
 
 
 SPEC = AlgorithmSpec(CONFIG=CONFIG, PRESETS=PRESETS, VARIANTS=VARIANTS, FIXED=FIXED,

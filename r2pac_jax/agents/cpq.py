@@ -31,9 +31,9 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from r2pac_jax.agents.base import (TransitionAlgorithm, actor_only, check_act, check_choice,
-                                   check_counts, check_lane_hparams, check_obs, check_positive,
-                                   check_sizes, cost_limit_task_values, optimizer_step, osrl_presets,
+from r2pac_jax.agents.base import (TanhMeanPolicy, TransitionAlgorithm, actor_only, check_choice,
+                                   check_counts, check_lane_hparams, check_positive, check_sizes,
+                                   cost_limit_task_values, optimizer_step, osrl_presets,
                                    soft_update)
 from r2pac_jax.agents.constraints import q_threshold
 from r2pac_jax.agents.spec import AlgorithmSpec
@@ -126,7 +126,7 @@ class CPQState:
     key: jax.Array
 
 
-class Agent(TransitionAlgorithm):
+class Agent(TanhMeanPolicy, TransitionAlgorithm):
     plot_metrics = ("loss_critic", "loss_cost_critic", "loss_actor", "alpha")
 
     def __init__(self, cfg, obs_dim: int, act_dim: int):
@@ -221,16 +221,6 @@ class Agent(TransitionAlgorithm):
                        q_thres=q_thres, actor_safe_share=safe_share)
         return state.replace(params=p, opt=opt, target=tgt, log_alpha=log_alpha,
                              step=state.step + 1, key=key), metrics
-
-    def policy_params(self, state: CPQState, hp: dict) -> dict:
-        return {"actor": state.params["actor"]}
-
-    def act(self, pp: dict, obs: jax.Array, key: jax.Array) -> jax.Array:
-        """Deterministic: obs [B, obs_dim] -> tanh(mu(obs)) [B, act_dim]; key unused."""
-        del key
-        check_obs(obs, self.obs_dim)
-        mu, _ = self.actor_net.apply(pp["actor"], obs)
-        return check_act(obs, jnp.tanh(mu), self.obs_dim, self.act_dim)
 
 
 SPEC = AlgorithmSpec(CONFIG=CONFIG, PRESETS=PRESETS, VARIANTS=VARIANTS, FIXED=FIXED,
