@@ -401,3 +401,39 @@ def test_assemble_fills_the_file_episode_by_episode_as_a_concatenation_would(tmp
         np.testing.assert_array_equal(arrays[k], want, err_msg=k)
     with pytest.raises(DatasetError, match="episode 1 holds 3 steps, its pool record 4"):
         gen.assemble([pool[0], (1, 1.0, 0.0, 4), pool[2]])
+
+
+@pytest.mark.parametrize("stagger", [False, True])
+def test_stagger_starts_spreads_episode_phases_and_keeps_only_whole_episodes(stagger, tmp_path):
+    """stagger_starts (a recipe value, default off and left out of the card): env j's first
+    episode starts at step j x 1000 / 4, so from then on one episode ends in every update of 250
+    steps instead of all four in one update of four; the shortened first ones are not pooled."""
+    import pickle
+
+    from r2pac_jax.data.dsrl import DatasetError
+    from r2pac_jax.data.factory import collect
+
+    t = get_task("SwimmerVelocity")  # 1,000-step episodes without terminals, C MuJoCo
+    assert "stagger_starts" not in collect.make_spec(t).to_dict()["ppo"]
+    with pytest.raises(DatasetError, match="stagger_starts must be true or false"):
+        collect.make_spec(t, ppo={"stagger_starts": "yes"})
+    ppo = dict(num_envs=4, rollout_len=250, hidden=(8,), minibatches=2, epochs=1,
+               stagger_starts=stagger)
+    spec = collect.make_spec(t, trajectories=50, env_steps=8 * 1000, ppo=ppo, physics="mujoco",
+                             checkpoint_every=1)
+    assert spec.to_dict()["ppo"].get("stagger_starts", False) is stagger
+    gen = collect.Generation(t, spec, tmp_path / "g", log=lambda m: None, progress=False)
+    gen.dir.mkdir(parents=True)
+    (gen.dir / "episodes").mkdir()
+    res = gen.run()  # all 8 updates
+    assert res["updates"] == 8 and res["finished_episodes"] == (5 if stagger else 8)
+    log = [json.loads(ln) for ln in (gen.dir / "log.jsonl").read_text().splitlines()]
+    finished = [r["finished"] for r in log]
+    if stagger:  # envs 3, 2, 1 cut short in updates 1-3 (not counted), then one a update
+        assert finished == [0, 0, 0, 1, 1, 1, 1, 1]
+    else:  # all four together, every fourth update
+        assert finished == [0, 0, 0, 4, 0, 0, 0, 4]
+    state = pickle.loads((gen.dir / "state.pkl").read_bytes())
+    lengths = [e[3] for e in state["pool"]]
+    assert lengths and all(n == t.episode_len for n in lengths)  # whole episodes only
+    assert len(lengths) <= sum(finished)

@@ -198,10 +198,17 @@ class Generation:
         k_par, k_env, key = jax.random.split(key, 3)
         params = pl.init_params(k_par, self.task.obs_dim, self.actor, self.critics)
         env_state = self.env.reset_batch(jax.random.split(k_env, s.ppo.num_envs))
-        return dict(update=0, env_steps=0, key=np.asarray(key), params=_numpy(params),
-                    opt_state=_numpy(self.opt.init(params)), pid=(0.0, 0.0), lam=0.0,
-                    env=_numpy(env_state), partial=[None] * s.ppo.num_envs, pool=[],
-                    next_index=0, finished=0, thin_rounds=0, last_cost=0.0, last_return=0.0)
+        state = dict(update=0, env_steps=0, key=np.asarray(key), params=_numpy(params),
+                     opt_state=_numpy(self.opt.init(params)), pid=(0.0, 0.0), lam=0.0,
+                     env=_numpy(env_state), partial=[None] * s.ppo.num_envs, pool=[],
+                     next_index=0, finished=0, thin_rounds=0, last_cost=0.0, last_return=0.0)
+        if s.ppo.stagger_starts:
+            n = s.ppo.num_envs
+            offsets = (np.arange(n) * self.task.episode_len) // n  # [N] steps already "taken"
+            state["env"] = state["env"].replace(t=offsets.astype(np.asarray(state["env"].t).dtype))
+            # the shortened first episodes: not pooled, not in the multiplier's episode cost
+            state["skip_first"] = [bool(o > 0) for o in offsets]
+        return state
 
     def _check_spec(self) -> None:
         f = self.dir / "spec.json"
@@ -282,6 +289,9 @@ class Generation:
                     break
                 state["partial"][j] = None
                 start = stop
+                if state.get("skip_first", [False] * N)[j]:  # stagger_starts' short first one
+                    state["skip_first"][j] = False
+                    continue
                 ret, cost = float(seg["rewards"].sum()), float(seg["costs"].sum())
                 finished.append((ret, cost))
                 if cost <= s.cost_cap and ret >= s.reward_min:

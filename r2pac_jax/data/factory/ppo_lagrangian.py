@@ -36,7 +36,7 @@ from r2pac_jax.envs.base import put_rows
 MEAN_SQUASH = ("tanh", "none")
 # values added after files were pinned: left out of spec.json and the card at their default, so
 # a generation started before them resumes and every earlier card reads the same
-LATER_DEFAULTS = {"mean_squash": "tanh"}
+LATER_DEFAULTS = {"mean_squash": "tanh", "stagger_starts": False}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,6 +60,10 @@ class PPOLagConfig:
     # keeps half its mean actions in the saturated tanh: it did not bring the cost under the
     # limit there (GENERATION.md, "SwimmerVelocity: why its learner never meets the last limit")
     mean_squash: str = "tanh"
+    # all envs start together, so on tasks without terminals every update sees the same phase
+    # of every episode (one in ten holds the starts); true: env j's first episode starts at
+    # step j x episode_len / num_envs (shortened first episodes are not kept nor counted)
+    stagger_starts: bool = False
 
     def validate(self) -> None:
         from r2pac_jax.data.dsrl import DatasetError
@@ -77,6 +81,9 @@ class PPOLagConfig:
         if self.mean_squash not in MEAN_SQUASH:
             raise DatasetError(f"PPO-Lagrangian: mean_squash must be one of "
                                f"{', '.join(MEAN_SQUASH)}, got {self.mean_squash!r}")
+        if not isinstance(self.stagger_starts, bool):
+            raise DatasetError(f"PPO-Lagrangian: stagger_starts must be true or false, got "
+                               f"{self.stagger_starts!r}")
         if len(self.pid) != 3 or min(self.pid) < 0:
             raise DatasetError(f"PPO-Lagrangian: pid must be three gains >= 0, got {self.pid}")
 
