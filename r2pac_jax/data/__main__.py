@@ -1,5 +1,6 @@
 """`python -m r2pac_jax.data make --task TASK [--source scripted|ppo-lagrangian]
-[--trajectories N] [--seed S] [--budget ENV_STEPS] [--physics auto|mujoco|mjx] [--force]`;
+[--trajectories N] [--seed S] [--budget ENV_STEPS] [--ppo KEY=VALUE ...] [--physics auto|mujoco|mjx]
+[--force]`;
 `python -m r2pac_jax.data check FILE [--task T] [--fast] [--seeds 100,101,102]`."""
 from __future__ import annotations
 
@@ -31,6 +32,10 @@ def main(argv=None) -> int:
                          "CarGoal2); the schedule scales with it")
     mk.add_argument("--num-envs", type=int, default=None,
                     help="ppo-lagrangian: parallel environments (default the task's recipe)")
+    mk.add_argument("--ppo", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="ppo-lagrangian: generator recipe values to try (PPOLagConfig's, JSON "
+                         "values, e.g. stagger_starts=true); the file's name gets -ppo-KEY_VALUE "
+                         "so that it never stands in for the task's recipe file")
     mk.add_argument("--checkpoint-every", type=int, default=10,
                     help="ppo-lagrangian: updates between checkpoints")
     mk.add_argument("--physics", default="auto",
@@ -67,8 +72,13 @@ def main(argv=None) -> int:
                                   else factory.default_trajectories(task))
         t0 = time.time()
         if args.source == "ppo-lagrangian":
-            path = factory.dataset_path(task, args.seed, n, args.source, args.budget) \
-                if task.collection else None
+            trial = factory.parse_recipe_values(args.ppo)
+            if trial and task.collection:  # unknown keys and bad values refused before any lock
+                from r2pac_jax.data.factory.collect import make_spec
+
+                make_spec(task, env_steps=args.budget, ppo=trial)
+            path = factory.dataset_path(task, args.seed, n, args.source, args.budget,
+                                        trial=trial) if task.collection else None
             if path is not None and not args.force and path.exists() and \
                     factory.card_path(path).exists():
                 print(f"{path} exists (card {factory.card_path(path)}); --force makes it again")
@@ -76,7 +86,7 @@ def main(argv=None) -> int:
             ppo = {} if args.num_envs is None else {"num_envs": args.num_envs}
             path = factory.generate_dataset(task, n, args.seed, source=args.source,
                                             physics=args.physics, env_steps=args.budget,
-                                            force=args.force, ppo=ppo,
+                                            force=args.force, ppo={**ppo, **trial}, trial=trial,
                                             checkpoint_every=args.checkpoint_every,
                                             progress=True)
         else:

@@ -241,6 +241,31 @@ def test_data_cli_errors(tmp_path, monkeypatch, capsys):
         with pytest.raises(FactoryError, match=fragment):
             generate_dataset(get_task("CarGoal2"), source="ppo-lagrangian", **kw)
     assert not list(tmp_path.glob("CarGoal2-*"))
+    # recipe values to try: KEY=VALUE, known keys, valid values, all before any lock file
+    for bad, fragment in ((["stagger_starts"], "--ppo takes KEY=VALUE items, got 'stagger_starts'"),
+                          (["lr_actor=1e-4"], "no recipe value 'lr_actor'"),
+                          (["stagger_starts=2"], "stagger_starts must be true or false")):
+        assert main(["make", "--task", "SwimmerVelocity", "--ppo", *bad]) == 2
+        assert fragment in capsys.readouterr().err
+    assert not list(tmp_path.glob("SwimmerVelocity-*"))
+
+
+def test_a_trial_recipe_file_is_named_as_such_and_never_found_as_the_recipe_file(tmp_path,
+                                                                                  monkeypatch):
+    from r2pac_jax.data import factory
+
+    monkeypatch.setenv("R2PAC_DATA_DIR", str(tmp_path))
+    t = get_task("SwimmerVelocity")
+    recipe = factory.learned_path(t)
+    trial = factory.dataset_path(t, 0, t.collection.trajectories, "ppo-lagrangian",
+                                 trial={"stagger_starts": True})
+    assert trial.name == recipe.name.replace(".hdf5", "-ppo-stagger_starts_true.hdf5")
+    for p in (trial, factory.card_path(trial)):
+        p.write_text("{}")
+    assert factory.find_learned(t) is None  # a trial stands in for no recipe file
+    for p in (recipe, factory.card_path(recipe)):
+        p.write_text("{}")
+    assert factory.find_learned(t) == recipe
 
 
 @pytest.mark.slow

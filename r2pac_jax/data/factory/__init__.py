@@ -130,15 +130,46 @@ def is_legacy_cache(path: Path) -> bool:
                for p in path.iterdir())
 
 
+def parse_recipe_values(items) -> dict:
+    """`data make --ppo`'s KEY=VALUE items -> {key: value} (JSON values; a bare word a string)."""
+    import json
+
+    out = {}
+    for it in items:
+        if "=" not in it:
+            raise FactoryError(f"--ppo takes KEY=VALUE items, got {it!r} (e.g. "
+                               "stagger_starts=true)")
+        k, v = it.split("=", 1)
+        try:
+            out[k] = json.loads(v)
+        except ValueError:
+            out[k] = v
+    return out
+
+
+def _trial_tag(trial: Optional[dict]) -> str:
+    """The name's mark of tried recipe values: -ppo-KEY_VALUE-... ('' for none)."""
+    if not trial:
+        return ""
+    import json
+    import re
+
+    parts = [f"{k}_{json.dumps(v) if not isinstance(v, str) else v}"
+             for k, v in sorted(trial.items())]
+    return "-ppo-" + re.sub(r"[^A-Za-z0-9_.+-]", "", "-".join(parts))
+
+
 def dataset_path(task: TaskSpec, seed: int, trajectories: int, source: str = "scripted",
-                 env_steps: Optional[int] = None) -> Path:
+                 env_steps: Optional[int] = None, trial: Optional[dict] = None) -> Path:
+    """`trial`: recipe values tried (`data make --ppo`), marked in the name so that such a
+    file is never found as the task's recipe file."""
     if source == "scripted":
         return cache_dir() / f"{task.name}-generated-s{seed}-n{trajectories}.hdf5"
     from r2pac_jax.data.factory.collect import DATA_VERSION
 
     budget = "" if env_steps in (None, task.collection.env_steps) else f"-b{env_steps}"
     return cache_dir() / (f"{task.name}-generated-ppolag-v{DATA_VERSION}-s{seed}-"
-                          f"n{trajectories}{budget}.hdf5")
+                          f"n{trajectories}{budget}{_trial_tag(trial)}.hdf5")
 
 
 def learned_path(task: TaskSpec, seed: int = 0, env_steps: Optional[int] = None) -> Path:
@@ -172,7 +203,7 @@ def find_learned(task: TaskSpec) -> Optional[Path]:
     if not d.is_dir() or task.collection is None:
         return None
     found = [p for p in d.glob(f"{task.name}-generated-ppolag-v*-s*-n*.hdf5")
-             if card_path(p).exists()]
+             if card_path(p).exists() and "-ppo-" not in p.name]  # trials are never found
     if not found:
         return None
     default = learned_path(task)
@@ -198,11 +229,13 @@ def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: i
                      plot: bool = True,
                      source: Optional[str] = None, physics: str = "auto",
                      env_steps: Optional[int] = None, force: bool = False,
-                     log: Callable[[str], None] = print, **learned) -> Optional[Path]:
+                     log: Callable[[str], None] = print, trial: Optional[dict] = None,
+                     **learned) -> Optional[Path]:
     """Make (or reuse) the dataset file for (task, seed, trajectories, source); its path.
     `source` None is `default_source(task)` (the learned recipe but for the demo task).
 
-    `force` discards an existing file (and a learned source's partial state) first. For the
+    `force` discards an existing file (and a learned source's partial state) first. `trial`:
+    recipe values tried (also in `learned["ppo"]`), marked in the file's name. For the
     learned source, `env_steps` is the RL budget (default DSRL's) and `learned` passes
     `collect.generate_learned`'s options (`ppo`, `checkpoint_every`, `stop_after`, ...);
     it returns None when stopped early by `stop_after`. `progress`: the scripted sources call it
@@ -214,7 +247,7 @@ def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: i
     # refused before the lock file and the partial state exist, whoever the caller is
     check_at_least_one(trajectories=n, budget=env_steps,
                        checkpoint_every=learned.get("checkpoint_every"))
-    path = dataset_path(task, seed, n, source, env_steps)
+    path = dataset_path(task, seed, n, source, env_steps, trial=trial)
     from r2pac_jax.io import ForeignDirectory, WriteError, claim_directory
 
     try:
