@@ -428,7 +428,8 @@ def test_assemble_fills_the_file_episode_by_episode_as_a_concatenation_would(tmp
         gen.assemble([pool[0], (1, 1.0, 0.0, 4), pool[2]])
 
 
-@pytest.mark.parametrize("stagger", [False, True])
+# the phase-locked contrast (the default, every pin's) is slow: the default suite is near 10 min
+@pytest.mark.parametrize("stagger", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_stagger_starts_spreads_episode_phases_and_keeps_only_whole_episodes(stagger, tmp_path):
     """stagger_starts (a recipe value, default off and left out of the card): env j's first
     episode starts at step j x 1000 / 4, so from then on one episode ends in every update of 250
