@@ -70,6 +70,25 @@ case "${1:-decide}" in
       left_out "$t" && continue
       for c in 0 "$w"; do cell "$t" "$c" 3 seeds3-5; done
     done ;;
+  rerun)  # a kept baseline cell (candidate 0) whose run left with its machine, trained again
+    # into $OUT-rerun for writeup.py --selection (its policy) and its training log; same
+    # command, seeds and file, so its scores must equal the kept ones (said, never overwritten)
+    tasks="$(only "$DECISION")" || exit 2
+    for t in $tasks; do
+      left_out "$t" && continue
+      k="$KEPT/seeds0-2/$t/0"; d="$OUT/seeds0-2/$t/0"
+      [ -f "$k/results.json" ] || { echo "== rerun $t: no kept baseline cell"; continue; }
+      [ -d "$d/policy" ] && { echo "== rerun $t: its run is here ($d)"; continue; }
+      OUT="$OUT-rerun" KEPT=/nonexistent cell "$t" 0 0 seeds0-2
+      python - "$k/results.json" "$OUT-rerun/seeds0-2/$t/0/results.json" <<'PY'
+import json, sys
+a, b = (json.load(open(f)) for f in sys.argv[1:])
+key = ("normalized_reward", "normalized_cost")
+same = all(a[k]["per_seed"] == b[k]["per_seed"] for k in key)
+print(("== rerun equal to the kept cell: " if same else "!! rerun differs from the kept cell: ")
+      + "; ".join(f"{k} {a[k]['per_seed']} / {b[k]['per_seed']}" for k in key))
+PY
+    done ;;
   keep)  # each finished cell's results, config and logs (the write-up's training diagnostics:
     # writeup.py); its checkpoints stay in runs/
     for f in "$OUT"/*/*/*/results.json; do
@@ -79,5 +98,5 @@ case "${1:-decide}" in
       for j in eval.jsonl metrics.jsonl; do [ -f "$d/$j" ] && cp "$d/$j" "$k/"; done
       cp "$d/results.json" "$k/" && echo "kept $k"  # last: it marks the cell kept
     done ;;
-  *) echo "usage: run.sh decide | confirm WINNER | keep" >&2; exit 2 ;;
+  *) echo "usage: run.sh decide | confirm WINNER | rerun | keep" >&2; exit 2 ;;
 esac
