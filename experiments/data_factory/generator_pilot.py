@@ -20,19 +20,6 @@ from pathlib import Path
 import numpy as np
 
 
-def parse_ppo(items):
-    out = {}
-    for it in items:
-        if "=" not in it:
-            sys.exit(f"--ppo takes KEY=VALUE, got {it!r}")
-        k, v = it.split("=", 1)
-        try:
-            out[k] = json.loads(v)
-        except ValueError:  # a bare word: a string value
-            out[k] = v
-    return out
-
-
 def summarise(rows):
     n = len(rows)
     tenths = []
@@ -54,16 +41,16 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="runs/pilots")
     a = ap.parse_args(argv)
-    from r2pac_jax.data.factory import collect
+    from r2pac_jax.data.factory import collect, parse_recipe_values
     from r2pac_jax.tasks import get_task
 
     task = get_task(a.task)
-    ppo = parse_ppo(a.ppo)
+    ppo = parse_recipe_values(a.ppo)
     spec = collect.make_spec(task, env_steps=a.budget, seed=a.seed, ppo=ppo)
     tag = "-".join(f"{k}{v}" for k, v in sorted(ppo.items())) or "recipe"
     d = Path(a.out) / f"{a.task}-b{a.budget}-s{a.seed}-{tag}"
     gen = collect.Generation(task, spec, d, progress=sys.stderr.isatty())
-    res = gen.run()
+    gen.run()
     rows = [json.loads(x) for x in open(d / "log.jsonl")]
     tail = rows[-max(1, len(rows) // 10):]
     fin = sum(r["finished"] for r in tail)

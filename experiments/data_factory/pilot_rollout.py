@@ -25,16 +25,11 @@ def main(argv=None) -> int:
     import jax
     import jax.numpy as jnp
 
+    from r2pac_jax.data.factory import parse_recipe_values
     from r2pac_jax.data.factory import ppo_lagrangian as pl
     from r2pac_jax.tasks import get_task
 
-    ppo = {}
-    for it in a.ppo:
-        k, v = it.split("=", 1)
-        try:
-            ppo[k] = json.loads(v)
-        except ValueError:
-            ppo[k] = v
+    ppo = parse_recipe_values(a.ppo)
     state = pickle.loads((Path(a.pilot_dir) / "state.pkl").read_bytes())
     t = get_task(a.task)
     actor, _, _ = pl.networks(t.obs_dim, t.act_dim, pl.PPOLagConfig(**ppo))
