@@ -212,11 +212,28 @@ def _decision():
 
 
 def decision_landed(path: Path = DECISION) -> bool:
-    """decide.py writes decision.json only once every decision cell has a result."""
+    """R2PAC's default is settled: decision.json (written once every decision cell has a
+    result) names no winner, or its confirmation is in and, where it confirmed the winner,
+    the registry's r2pac default already holds the winner's setting (PROTOCOL.md item 4)."""
     try:
-        return "decision" in json.loads(path.read_text())
+        d = json.loads(path.read_text())
     except (OSError, ValueError):
         return False
+    winner = d.get("decision", {}).get("winner", "absent")
+    if winner is None:
+        return True
+    if winner == "absent" or "confirmation" not in d:
+        return False
+    if not d["confirmation"].get("confirmed"):
+        return True
+    from r2pac_jax.agents.r2pac import R2PACConfig
+
+    default = R2PACConfig()
+    for item in _decision().CANDIDATES[winner]:
+        key, value = item.split("=", 1)
+        if getattr(default, key) != json.loads(value):
+            return False
+    return True
 
 
 # ---------------------------------------------------------------------------------------------
@@ -486,7 +503,7 @@ def main(argv=None) -> int:
                    help="only this analysis's cells (repeatable)")
     r.add_argument("--runs", default="runs/analyses")
     r.add_argument("--before-decision", action="store_true",
-                   help="run although R2PAC's default is not decided yet (not the protocol's "
+                   help="run although R2PAC's default is not settled yet (not the protocol's "
                         "runs: PROTOCOL.md waits for the decision)")
     q = sub.add_parser("report")
     q.add_argument("names", nargs="*", help=f"any of {', '.join(REPORTS)} (default: all)")
@@ -509,8 +526,9 @@ def main(argv=None) -> int:
             return 0
         if not args.before_decision and not decision_landed():
             raise AnalysesError(
-                f"R2PAC's default is not decided yet ({DECISION} holds no verdict): PROTOCOL.md "
-                "runs the analyses at the decided default; run the decision first "
+                f"R2PAC's default is not settled yet ({DECISION}: no verdict, or a winner whose "
+                "confirmation is not in, or a confirmed winner not yet made the default): "
+                "PROTOCOL.md runs the analyses at the settled default; finish the decision first "
                 "(experiments/r2pac_decision), or pass --before-decision for a trial")
         chains = plan(args.analysis or tuple(ANALYSES), args.task)
         decide = _decision()

@@ -39,10 +39,19 @@ def test_train_argv_sets_chunk_length_by_its_flag_and_others_by_set():
 def test_run_refuses_before_the_decision(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(an, "DECISION", tmp_path / "decision.json")
     assert an.main(["run", "--task", "BallRun"]) == 2
-    assert "not decided yet" in capsys.readouterr().err
+    assert "not settled yet" in capsys.readouterr().err
     assert not an.decision_landed(tmp_path / "decision.json")
-    (tmp_path / "decision.json").write_text(json.dumps({"decision": {"winner": None}}))
-    assert an.decision_landed(tmp_path / "decision.json")
+    f = tmp_path / "decision.json"
+    f.write_text(json.dumps({"decision": {"winner": None}}))
+    assert an.decision_landed(f)  # no winner: the default stays, settled
+    f.write_text(json.dumps({"decision": {"winner": "b"}}))
+    assert not an.decision_landed(f)  # a winner waits for its confirmation
+    f.write_text(json.dumps({"decision": {"winner": "b"}, "confirmation": {"confirmed": False}}))
+    assert an.decision_landed(f)  # not confirmed: the default stays
+    f.write_text(json.dumps({"decision": {"winner": "b"}, "confirmation": {"confirmed": True}}))
+    from r2pac_jax.agents.r2pac import R2PACConfig
+    # confirmed: settled once the registry's default holds b's setting (vc_nonneg=true)
+    assert an.decision_landed(f) == R2PACConfig().vc_nonneg
 
 
 def test_a_failed_cell_is_not_kept_and_a_started_one_resumes(tmp_path, monkeypatch):
