@@ -86,7 +86,7 @@ def main(argv=None) -> int:
             ppo = {} if args.num_envs is None else {"num_envs": args.num_envs}
             path = factory.generate_dataset(task, n, args.seed, source=args.source,
                                             physics=args.physics, env_steps=args.budget,
-                                            force=args.force, ppo={**ppo, **trial}, trial=trial,
+                                            force=args.force, ppo=ppo, trial=trial,
                                             checkpoint_every=args.checkpoint_every,
                                             progress=True)
         else:

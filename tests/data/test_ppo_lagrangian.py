@@ -266,6 +266,16 @@ def test_a_trial_recipe_file_is_named_as_such_and_never_found_as_the_recipe_file
     for p in (recipe, factory.card_path(recipe)):
         p.write_text("{}")
     assert factory.find_learned(t) == recipe
+    # a trial's values reach the generator beside the caller's own recipe values
+    from r2pac_jax.data.factory import collect
+
+    seen = {}
+    monkeypatch.setattr(collect, "generate_learned",
+                        lambda task, path, *a, **kw: seen.update(path=path, **kw))
+    factory.generate_dataset(t, source="ppo-lagrangian", ppo={"num_envs": 7},
+                             trial={"stagger_starts": True}, force=True)
+    assert seen["path"].name == trial.name
+    assert seen["ppo"] == {"num_envs": 7, "stagger_starts": True}
 
 
 @pytest.mark.slow

@@ -235,7 +235,7 @@ def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: i
     `source` None is `default_source(task)` (the learned recipe but for the demo task).
 
     `force` discards an existing file (and a learned source's partial state) first. `trial`:
-    recipe values tried (also in `learned["ppo"]`), marked in the file's name. For the
+    recipe values tried, added to `learned["ppo"]` and marked in the file's name. For the
     learned source, `env_steps` is the RL budget (default DSRL's) and `learned` passes
     `collect.generate_learned`'s options (`ppo`, `checkpoint_every`, `stop_after`, ...);
     it returns None when stopped early by `stop_after`. `progress`: the scripted sources call it
@@ -248,6 +248,8 @@ def generate_dataset(task: TaskSpec, trajectories: Optional[int] = None, seed: i
     check_at_least_one(trajectories=n, budget=env_steps,
                        checkpoint_every=learned.get("checkpoint_every"))
     path = dataset_path(task, seed, n, source, env_steps, trial=trial)
+    if trial:
+        learned["ppo"] = {**learned.get("ppo", {}), **trial}
     from r2pac_jax.io import ForeignDirectory, WriteError, claim_directory
 
     try:
