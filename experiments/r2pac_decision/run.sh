@@ -27,6 +27,9 @@ only() {  # the tasks of list $1 that TASKS names (all of them where TASKS is un
 left_out() {  # the task is in left_out.json (decide.py's record of tasks left out)
   grep -q "\"$1\"" experiments/r2pac_decision/left_out.json 2>/dev/null
 }
+left_out_of_confirmation() {  # ... or in the confirmation's own record
+  left_out "$1" || grep -q "\"$1\"" experiments/r2pac_decision/left_out_confirmation.json 2>/dev/null
+}
 sets_of() {
   case "$1" in
     0) echo "" ;;
@@ -67,7 +70,9 @@ case "${1:-decide}" in
     w="${2:?confirm needs the winning candidate id}"
     tasks="$(only "$CONFIRM")" || exit 2
     for t in $tasks; do
-      left_out "$t" && continue
+      if left_out_of_confirmation "$t"; then
+        echo "== $t: left out of the confirmation (left_out*.json)"; continue
+      fi
       for c in 0 "$w"; do cell "$t" "$c" 3 seeds3-5; done
     done ;;
   rerun)  # a kept baseline cell (candidate 0) whose run left with its machine, trained again

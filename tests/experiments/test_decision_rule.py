@@ -135,3 +135,46 @@ def test_the_verdict_is_taken_on_the_tasks_left(tmp_path, monkeypatch, capsys):
     assert got["decision"]["winner"] == "a" and "Walker2dVelocity" not in got["tasks"]
     assert got["decision"]["candidates"]["a"]["needed"] == 5
     assert "Walker2dVelocity: left out of the decision" in capsys.readouterr().out
+
+
+def test_a_task_left_out_of_the_confirmation_only(tmp_path, monkeypatch, capsys):
+    """A file that does not regenerate when the confirmation needs it: the decision keeps the
+    task (its seeds 0-2 cells exist), the confirmation is taken on the 9 comparisons left, and
+    at least half of 9 is 5."""
+    mod = load_script("experiments/r2pac_decision/decide.py", "decide_conf")
+    dec, conf = tmp_path / "left_out.json", tmp_path / "left_out_confirmation.json"
+    dec.write_text('{"Walker2dVelocity": "did not regenerate"}')
+    conf.write_text('{"HopperVelocity": "did not regenerate here"}')
+    monkeypatch.setattr(mod, "LEFT_OUT", dec)
+    monkeypatch.setattr(mod, "LEFT_OUT_CONFIRMATION", conf)
+    root = tmp_path / "cells"
+
+    def cell(seeds, t, c, r):
+        d = root / seeds / t / c
+        d.mkdir(parents=True)
+        (d / "results.json").write_text(json.dumps(dict(
+            normalized_reward=dict(mean=r), normalized_cost=dict(mean=0.5))))
+
+    for t in mod.tasks_left(mod.DECISION_TASKS, dec):
+        for c, r in (("0", 0.1), ("a", 0.1), ("b", 0.3), ("c", 0.1)):
+            cell("seeds0-2", t, c, r)
+    left = mod.tasks_left(mod.CONFIRMATION_TASKS, dec, mod.left_out_of_confirmation(conf))
+    assert len(left) == 9 and "HopperVelocity" not in left
+    for i, t in enumerate(left):  # b higher on the first 5 of the 9
+        cell("seeds3-5", t, "0", 0.1)
+        cell("seeds3-5", t, "b", 0.3 if i < 5 else 0.0)
+    out = tmp_path / "decision.json"
+    assert mod.main(["--runs", str(root), "--out", str(out)]) == 0
+    got = json.loads(out.read_text())
+    assert "HopperVelocity" in got["tasks"] and "HopperVelocity" not in got["confirmation_tasks"]
+    assert got["confirmation"] == dict(confirmed=True, made_unsafe=[], comparisons=9,
+                                       reward_higher_on=list(left[:5]))
+    assert "HopperVelocity: left out of the confirmation" in capsys.readouterr().out
+    # 4 of 9 is fewer than half
+    (root / "seeds3-5" / left[4] / "b" / "results.json").write_text(json.dumps(dict(
+        normalized_reward=dict(mean=0.0), normalized_cost=dict(mean=0.5))))
+    assert mod.main(["--runs", str(root), "--out", str(out)]) == 0
+    assert not json.loads(out.read_text())["confirmation"]["confirmed"]
+    conf.write_text('{"AntCircle": "x"}')
+    with pytest.raises(ValueError, match="AntCircle is not a confirmation task"):
+        mod.left_out_of_confirmation(conf)
