@@ -14,8 +14,8 @@
 # Environment: QB_OUT (runs/quality_bar_v2), TABLE_OUT (runs/table1), ALGOS (Table 1's columns,
 # default bc-all-mlp,cpq,coptidice,r2pac: the quickest on a CPU; add bcq-lag,cdt,fisor where the
 # session has the hours: `python -m r2pac_jax.table ... --estimate`), TABLE_COLUMNS (the committed
-# table's columns, default all seven: bc-all-mlp,cpq,coptidice,bcq-lag,cdt,fisor,r2pac; a column
-# left out drops its cells from table.md), SKIP_TABLE=1 to stop after 3,
+# table's columns, default all eight: bc-all-mlp,cpq,coptidice,bcq-lag,cdt,trebi,fisor,r2pac;
+# a column left out drops its cells from table.md), SKIP_TABLE=1 to stop after 3,
 # BUDGET_HOURS=H to fit each task's RL budget to H hours (make_learned.sh; recorded in the card).
 # A killed pipeline restarts where it stopped: finished files, runs and cells are skipped.
 set -uo pipefail
@@ -23,7 +23,7 @@ cd "$(dirname "$0")/../.."
 QB_OUT="${QB_OUT:-runs/quality_bar_v2}"
 TABLE_OUT="${TABLE_OUT:-runs/table1}"
 ALGOS="${ALGOS:-bc-all-mlp,cpq,coptidice,r2pac}"
-TABLE_COLUMNS="${TABLE_COLUMNS:-bc-all-mlp,cpq,coptidice,bcq-lag,cdt,fisor,r2pac}"  # the committed table's
+TABLE_COLUMNS="${TABLE_COLUMNS:-bc-all-mlp,cpq,coptidice,bcq-lag,cdt,trebi,fisor,r2pac}"  # the committed table's
 ARCHIVE=experiments/data_factory/results_v2
 TABLE_KEEP=experiments/table1/cpu-quick  # the committed CPU table (results and configs only)
 for t in "$@"; do
