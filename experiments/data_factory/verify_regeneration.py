@@ -10,7 +10,7 @@ compares a file made anew with all three and prints what agrees:
   its task) against the pin; the file's own bytes are printed too, but HDF5 writes its
   creation time into the file, so two identical generations differ there;
 - log: the new training log (FILE.log.jsonl, written beside the file) against the archived
-  one, update by update over every logged quantity except wall-clock speed; the first update
+  one, update by update over every logged quantity but the wall-clock ones; the first update
   that differs is named;
 - card: the card's data fields (counts, ranges, split) against the archived card; the two
   cards' software versions (python, jax, numpy, mujoco, pybullet) and machines (CPU model and
@@ -30,7 +30,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 CARD_KEYS = ("trajectories", "transitions", "safe_trajectories", "unsafe_trajectories",
              "return_range", "cost_range", "normalised_return_range")
-SPEED_KEYS = ("steps_per_s",)  # wall-clock: differs between any two runs
 
 
 def sha256(path: Path) -> str:
@@ -42,8 +41,7 @@ def sha256(path: Path) -> str:
 
 
 def _rows(lines) -> list[dict]:
-    return [{k: v for k, v in json.loads(x).items() if k not in SPEED_KEYS}
-            for x in lines if x.strip()]
+    return [json.loads(x) for x in lines if x.strip()]
 
 
 def _side_by_side(new: dict, old: dict) -> dict:
@@ -53,12 +51,17 @@ def _side_by_side(new: dict, old: dict) -> dict:
 
 
 def compare_logs(new: list[dict], old: list[dict]) -> dict:
-    """First update where any logged quantity differs (None when all shared updates agree)."""
+    """First update where a logged quantity differs (None when all shared updates agree): the
+    generator's own comparison (`collect.log_difference`: wall-clock fields left out, the keys
+    both logs have)."""
+    from r2pac_jax.data.factory.collect import log_difference
+
     for i, (a, b) in enumerate(zip(new, old)):
-        if a != b:
-            keys = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+        diff = log_difference(a, b)
+        if diff:
             return dict(agree=False, updates_compared=i + 1, first_difference=a.get("update"),
-                        keys=keys, new={k: a.get(k) for k in keys}, old={k: b.get(k) for k in keys})
+                        keys=list(diff), new={k: v[0] for k, v in diff.items()},
+                        old={k: v[1] for k, v in diff.items()})
     return dict(agree=len(new) == len(old), updates_compared=min(len(new), len(old)),
                 first_difference=None, new_updates=len(new), old_updates=len(old))
 

@@ -77,6 +77,7 @@ def read_scores(root: Path, seeds: str, tasks, cands) -> tuple[dict, list]:
 MANIFEST = Path(__file__).resolve().parents[1] / "table1" / "cpu-quick" / "manifest.json"
 # PROTOCOL.md: a task whose file does not regenerate bit for bit is left out, the bar scaled to
 # the tasks left. Each entry: {task: why} (the digests, the machine), written when it happens.
+ARCHIVE = Path(__file__).resolve().parents[2] / "experiments" / "data_factory" / "results_v2"
 LEFT_OUT = Path(__file__).with_name("left_out.json")
 # A task whose file did not regenerate when the confirmation needed it, after the decision was
 # taken on it (its seeds 0-2 cells ran on the pinned file): out of the confirmation only, whose
@@ -130,8 +131,21 @@ def pinned_file(task: str, make: bool = True, log=print) -> Path:
         m = re.search(r"-b(\d+)\.hdf5$", want["file"])
         cmd = [sys.executable, "-m", "r2pac_jax.data", "make", "--task", task, "--source",
                "ppo-lagrangian"] + (["--budget", m.group(1)] if m else [])
+        # the pinned file's archived log: a machine that does not make it again bit for bit is
+        # found at the first update that differs, not hours later by the digest
+        archived = ARCHIVE / task / (Path(want["file"]).stem + ".log.jsonl.gz")
+        if archived.is_file():
+            cmd += ["--expect-log", str(archived)]
         log(f"{task}: making {want['file']} again: {' '.join(cmd[1:])}")
-        subprocess.run(cmd, check=True, stdout=sys.stderr)  # stdout carries the path only
+        done = subprocess.run(cmd, stdout=sys.stderr)  # stdout carries the path only
+        if done.returncode == 3:
+            raise ValueError(f"{task}: the generation of {want['file']} parted from the pinned "
+                             f"file's log ({archived}; the update is named above): the file "
+                             "does not regenerate bit for bit here; PROTOCOL.md leaves the task "
+                             "out of the decision")
+        if done.returncode != 0:
+            raise ValueError(f"{task}: making {want['file']} failed (exit {done.returncode}; "
+                             "its error is above)")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: the pinned file of {task} is not on this machine")
     t = get_task(task)

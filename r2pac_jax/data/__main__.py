@@ -1,6 +1,6 @@
 """`python -m r2pac_jax.data make --task TASK [--source scripted|ppo-lagrangian]
 [--trajectories N] [--seed S] [--budget ENV_STEPS] [--ppo KEY=VALUE ...] [--physics auto|mujoco|mjx]
-[--force]`;
+[--expect-log LOG] [--force]`;
 `python -m r2pac_jax.data check FILE [--task T] [--fast] [--seeds 100,101,102]`."""
 from __future__ import annotations
 
@@ -41,6 +41,11 @@ def main(argv=None) -> int:
     mk.add_argument("--physics", default="auto",
                     help="ppo-lagrangian: auto (C MuJoCo on a CPU, MJX on an accelerator; "
                          "pybullet for the Bullet tasks) | mujoco | mjx | bullet")
+    mk.add_argument("--expect-log", default=None, metavar="LOG",
+                    help="ppo-lagrangian: the log of the file to make again (its .log.jsonl, or "
+                         "the .log.jsonl.gz archived in results_v2/TASK); the generation stops "
+                         "at the first update whose row differs (exit 3), an update in instead "
+                         "of hours, its partial state kept")
     mk.add_argument("--force", action="store_true",
                     help="discard an existing file (and a generation's partial state) first")
     ck = sub.add_parser("check", help="coverage, temptation and imitability of a dataset file "
@@ -70,6 +75,9 @@ def main(argv=None) -> int:
         n = args.trajectories or (task.collection.trajectories
                                   if args.source == "ppo-lagrangian" and task.collection
                                   else factory.default_trajectories(task))
+        if args.expect_log is not None and args.source != "ppo-lagrangian":
+            raise R2pacError(f"--expect-log compares a ppo-lagrangian generation's log; the "
+                             f"{args.source} source keeps none: leave it out")
         t0 = time.time()
         if args.source == "ppo-lagrangian":
             trial = factory.parse_recipe_values(args.ppo)
@@ -84,11 +92,17 @@ def main(argv=None) -> int:
                 print(f"{path} exists (card {factory.card_path(path)}); --force makes it again")
                 return 0
             ppo = {} if args.num_envs is None else {"num_envs": args.num_envs}
+            extra = {}
+            if args.expect_log is not None:
+                from r2pac_jax.data.factory.collect import read_log
+
+                read_log(args.expect_log)  # a missing or unreadable log: refused before any lock
+                extra["expect_log"] = args.expect_log
             path = factory.generate_dataset(task, n, args.seed, source=args.source,
                                             physics=args.physics, env_steps=args.budget,
                                             force=args.force, ppo=ppo, trial=trial,
                                             checkpoint_every=args.checkpoint_every,
-                                            progress=True)
+                                            progress=True, **extra)
         else:
             limits = factory.scripted_limits(task)
             if limits is not None:
@@ -102,8 +116,10 @@ def main(argv=None) -> int:
                                                 source=args.source, physics=args.physics,
                                                 force=args.force)
     except R2pacError as e:
+        from r2pac_jax.data.factory.collect import LogMismatch
+
         print(f"error: {e}", file=sys.stderr)
-        return 2
+        return 3 if isinstance(e, LogMismatch) else 2
     print(f"wrote {path} in {time.time() - t0:.1f} s; card {factory.card_path(path)}; "
           f"plot {path.with_suffix('.png')}")
     return 0

@@ -162,6 +162,50 @@ def test_resumed_generation_equals_an_uninterrupted_one(name, kw, tmp_path):
         np.testing.assert_array_equal(a["next_observations"][inner], a["observations"][inner + 1])
 
 
+def test_an_expected_log_stops_a_generation_at_its_first_differing_update(tmp_path):
+    """A machine that does not make a pinned file again is told an update in, not hours later
+    by the digest: the generation stops at the first row that differs from the file's log
+    (wall-clock fields aside), on resume too, and keeps its partial state."""
+    import gzip
+    import pickle
+
+    task = get_task("ReachAvoid")
+    part, partial = tmp_path / "part.hdf5", tmp_path / "part.hdf5.partial"
+    assert collect.generate_learned(task, part, stop_after=1, **RA) is None
+    row1 = collect.read_log(partial / "log.jsonl")[0]
+
+    def expected(name, rows):
+        path = tmp_path / name
+        with gzip.open(path, "wt") as f:  # as results_v2 archives it
+            f.writelines(json.dumps(r) + "\n" for r in rows)
+        return path
+
+    # update 1 agrees although its timings differ; update 2 cannot be row 1 again
+    slower = dict(row1, steps_per_s=row1["steps_per_s"] / 2, t_rollout=row1["t_rollout"] + 1)
+    at2 = expected("at2.log.jsonl.gz", [slower, dict(row1, update=2)])
+    with pytest.raises(collect.LogMismatch, match=r"update 2 of the generation differs from "
+                                                  r".*at2.log.jsonl.gz \(.* expected"):
+        collect.generate_learned(task, part, expect_log=at2, **RA)
+    with open(partial / "state.pkl", "rb") as f:
+        assert pickle.load(f)["update"] == 1  # stopped before update 2's checkpoint
+    assert not part.exists()
+    # the rows made before are checked on resume, before any new update is made (update 2's
+    # row, past the checkpoint, was dropped by the resume)
+    at1 = expected("at1.log.jsonl.gz", [dict(row1, multiplier=row1["multiplier"] + 1.0)])
+    with pytest.raises(collect.LogMismatch, match=r"update 1 of .*multiplier"):
+        collect.generate_learned(task, part, expect_log=at1, **RA)
+    assert [r["update"] for r in collect.read_log(partial / "log.jsonl")] == [1]
+
+
+def test_log_difference_leaves_out_wall_clock_fields_and_keys_one_side_lacks(tmp_path):
+    new = dict(update=2, multiplier=0.5, log_std=-0.5, steps_per_s=10.0, t_rollout=1.0)
+    old = dict(update=2, multiplier=0.5, steps_per_s=99.0)  # an older generator: no log_std
+    assert collect.log_difference(new, old) == {}
+    assert collect.log_difference(dict(new, multiplier=0.25), old) == {"multiplier": (0.25, 0.5)}
+    with pytest.raises(DatasetError, match="no generation log .*results_v2/TASK archives them"):
+        collect.read_log(tmp_path / "missing.log.jsonl.gz")
+
+
 def test_generation_refuses_changes_a_second_writer_and_force_discards(tmp_path, monkeypatch):
     task = get_task("ReachAvoid")
     path = tmp_path / "g.hdf5"
@@ -248,6 +292,14 @@ def test_data_cli_errors(tmp_path, monkeypatch, capsys):
         assert main(["make", "--task", "SwimmerVelocity", "--ppo", *bad]) == 2
         assert fragment in capsys.readouterr().err
     assert not list(tmp_path.glob("SwimmerVelocity-*"))
+    # the log of a file to make again: missing, or asked of a source that keeps none
+    assert main(["make", "--task", "CarGoal2", "--expect-log", str(tmp_path / "no.log.jsonl")]) \
+        == 2
+    assert "no generation log" in capsys.readouterr().err
+    assert main(["make", "--task", "ReachAvoid", "--source", "scripted", "--expect-log",
+                 str(tmp_path / "no.log.jsonl")]) == 2
+    assert "--expect-log compares a ppo-lagrangian generation's log" in capsys.readouterr().err
+    assert not list(tmp_path.glob("CarGoal2-*")) and not list(tmp_path.glob("ReachAvoid-*"))
 
 
 def test_a_trial_recipe_file_is_named_as_such_and_never_found_as_the_recipe_file(tmp_path,

@@ -1,6 +1,7 @@
 """experiments/r2pac_decision/decide.py applies PROTOCOL.md's rule as written: checked here on
 made-up scores before any decision run exists."""
 import json
+from pathlib import Path
 
 import pytest
 from conftest import load_script
@@ -178,3 +179,29 @@ def test_a_task_left_out_of_the_confirmation_only(tmp_path, monkeypatch, capsys)
     conf.write_text('{"AntCircle": "x"}')
     with pytest.raises(ValueError, match="AntCircle is not a confirmation task"):
         mod.left_out_of_confirmation(conf)
+
+
+def test_a_pinned_file_is_made_again_against_its_archived_log(tmp_path, monkeypatch):
+    """decide.py --file: the generation is given the pinned file's archived log, and its stop
+    at a differing update (exit 3) reads as a file that does not regenerate."""
+    import subprocess
+
+    mod = load_script("experiments/r2pac_decision/decide.py", "decide_file")
+    monkeypatch.setenv("R2PAC_DATA_DIR", str(tmp_path))
+    calls = []
+
+    def run(cmd, **kw):
+        calls.append(cmd)
+        return subprocess.CompletedProcess(cmd, 3)
+
+    monkeypatch.setattr(subprocess, "run", run)
+    with pytest.raises(ValueError, match="parted from the pinned file's log .* does not "
+                                         "regenerate bit for bit here"):
+        mod.pinned_file("HalfCheetahVelocity", log=lambda m: None)
+    cmd = calls[0]
+    log = Path(cmd[cmd.index("--expect-log") + 1])
+    assert log.is_file()
+    assert log.name == "HalfCheetahVelocity-generated-ppolag-v2-s0-n2495.log.jsonl.gz"
+    monkeypatch.setattr(subprocess, "run", lambda cmd, **kw: subprocess.CompletedProcess(cmd, 1))
+    with pytest.raises(ValueError, match=r"making .* failed \(exit 1"):
+        mod.pinned_file("HalfCheetahVelocity", log=lambda m: None)

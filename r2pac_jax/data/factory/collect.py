@@ -18,7 +18,10 @@ Partial state lives in `{file}.partial/` (locked while a generation runs):
 
 A killed generation continues from its last checkpoint and ends with the same arrays as an
 uninterrupted one (same machine and backend): episodes written after the checkpoint are
-discarded on resume and made again identically.
+discarded on resume and made again identically. Another machine may not make the same file
+(XLA's CPU numerics follow the CPU): given the log of the file it should make (`expect_log`),
+a generation compares every update's row with it and stops at the first that differs, an
+update in instead of hours, its partial state kept.
 """
 from __future__ import annotations
 
@@ -58,6 +61,36 @@ CPU2_STEPS_PER_S = {
     # bullet, 2026-12-03 at nice 19 beside a generation (load ~2.5): DroneRun 50 x 200,
     # DroneCircle 33 x 300
     "DroneRun": 1710, "DroneCircle": 1532}
+
+
+# A log row's wall-clock fields: they differ between any two runs; the data never depend on them
+TIMING_KEYS = frozenset({"steps_per_s", "t_rollout", "t_physics", "t_pool", "t_update",
+                         "t_checkpoint_before"})
+
+
+class LogMismatch(DatasetError):
+    """A generation's log parts from the log of the file it was to make again."""
+
+
+def read_log(path) -> list[dict]:
+    """The rows of a generation log (`.log.jsonl`, or gzipped `.log.jsonl.gz` as archived)."""
+    import gzip
+
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"no generation log {path}: give the .log.jsonl(.gz) written beside "
+                           "the file to make again (results_v2/TASK archives them)")
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "rt") as f:
+        return [json.loads(x) for x in f if x.strip()]
+
+
+def log_difference(new: dict, old: dict) -> dict:
+    """{key: (new, old)} for the logged quantities of one update that differ, the wall-clock
+    fields left out and only the keys both rows have compared (older generators logged fewer
+    quantities); {} where the rows agree."""
+    keys = (set(new) & set(old)) - TIMING_KEYS
+    return {k: (new[k], old[k]) for k in sorted(keys) if new[k] != old[k]}
 
 
 # A whole generation's mean rate over the rate above (policy at initialisation), in the eight
@@ -180,9 +213,12 @@ class Generation:
     """One learned-behaviour generation in `partial` (see the module docstring)."""
 
     def __init__(self, task: TaskSpec, spec: GenSpec, partial: Path,
-                 log: Callable[[str], None] = print, progress: bool = True):
+                 log: Callable[[str], None] = print, progress: bool = True,
+                 expected: Optional[tuple] = None):
         self.task, self.spec, self.dir = task, spec, Path(partial)
         self.log, self.progress = log, progress
+        # (rows, where they came from): the log of the file this generation is to make again
+        self.expected = expected
         self.env = task.make_env(physics=spec.physics)
         self.actor, self.critics, self.opt = pl.networks(task.obs_dim, task.act_dim, spec.ppo)
         self.policy = pl.make_policy_step(self.actor, self.critics)
@@ -244,6 +280,8 @@ class Generation:
                 if ln and json.loads(ln)["update"] <= state["update"]] \
             if self._log_file.exists() else []
         self._log_file.write_text("".join(r + "\n" for r in rows))
+        for r in rows:  # made before, perhaps without the expected log
+            self._check_row(json.loads(r))
         if resumed:
             self.log(f"resuming {self.dir} at update {state['update']} of {self.spec.updates} "
                      f"({state['env_steps']} env steps, {len(state['pool'])} episodes pooled)")
@@ -252,6 +290,22 @@ class Generation:
     @property
     def _log_file(self) -> Path:
         return self.dir / "log.jsonl"
+
+    def _check_row(self, row: dict) -> None:
+        """Refuse to go on once an update's row differs from the expected log's."""
+        if self.expected is None:
+            return
+        rows, source = self.expected
+        u = row["update"]
+        if u > len(rows):
+            return  # the expected log is shorter (a generation stopped early): nothing to match
+        diff = log_difference(row, rows[u - 1])
+        if diff:
+            what = "; ".join(f"{k} {a!r} here, {b!r} expected" for k, (a, b) in diff.items())
+            raise LogMismatch(
+                f"{self.spec.task}: update {u} of the generation differs from {source} ({what}): "
+                "this machine does not make that file bit for bit. The partial generation is "
+                f"kept in {self.dir}; without the expected log it continues from there")
 
     def _checkpoint(self, state: dict) -> None:
         s = self.spec
@@ -401,6 +455,7 @@ class Generation:
                     # the row before the checkpoint: a resume drops rows past its checkpoint
                     logf.write(json.dumps(row) + "\n")
                     logf.flush()
+                    self._check_row(row)  # before the checkpoint: a resume makes it again
                     done_here += 1
                     if state["update"] % s.checkpoint_every == 0 or state["update"] == s.updates:
                         t4 = time.time()
@@ -540,10 +595,13 @@ def generate_learned(task: TaskSpec, path: Path, trajectories: Optional[int] = N
                      env_steps: Optional[int] = None, seed: int = 0, physics: str = "auto",
                      ppo: Optional[dict] = None, checkpoint_every: int = 10,
                      progress: bool = True, log: Callable[[str], None] = print,
-                     stop_after: Optional[int] = None) -> Optional[Path]:
+                     stop_after: Optional[int] = None,
+                     expect_log: Optional[Path] = None) -> Optional[Path]:
     """Make (or continue making) the learned-behaviour file at `path`: generation in
     `{path}.partial/`, then the file, its card, a composition plot, the training log and plot.
-    Returns the path, or None when `stop_after` stopped it early (resumable)."""
+    Returns the path, or None when `stop_after` stopped it early (resumable). `expect_log`: the
+    log of the file to make again (`read_log`); the first update whose row differs raises
+    `LogMismatch`, the partial state kept."""
     import resource
 
     from r2pac_jax.data.dsrl import validate, write_dsrl
@@ -552,12 +610,13 @@ def generate_learned(task: TaskSpec, path: Path, trajectories: Optional[int] = N
     from r2pac_jax.report import plot_composition
 
     spec = make_spec(task, trajectories, env_steps, seed, physics, ppo, checkpoint_every)
+    expected = None if expect_log is None else (read_log(expect_log), str(expect_log))
     warning = schedule_warning(task, spec)
     if warning:
         log(f"warning: {warning}")
     partial = Path(f"{path}.partial")
     check_disk(task, spec, path.parent)
-    gen = Generation(task, spec, partial, log=log, progress=progress)
+    gen = Generation(task, spec, partial, log=log, progress=progress, expected=expected)
     t0 = time.time()
     info = gen.run(stop_after)
     if info is None:
