@@ -17,6 +17,15 @@ compares a file made anew with all three and prints what agrees:
   count) are printed beside, and those that differ named, to read a disagreement by (not a
   check of their own).
 Exit 0 when every record that exists agrees, 1 otherwise. Written as JSON to FILE.regen.json.
+
+    python experiments/data_factory/verify_regeneration.py --probe TASK[,TASK...]|all
+        [--updates 3] [--out probe.jsonl]
+
+asks, before hours are spent, whether this machine makes a pinned file again at all: each
+task's pinned file (the Table-1 manifest) is generated for its first UPDATES updates in a
+scratch cache, against its archived log (`data make --expect-log --stop-after`), and the first
+update that differs is named. A file whose first updates agree may still part later (one did at
+its second); one that parts is not made here bit for bit.
 """
 from __future__ import annotations
 
@@ -117,7 +126,44 @@ def verify(file: Path, manifest: Path, archive: Path) -> dict:
     return out
 
 
+def probe(task: str, pin: dict, archive: Path, updates: int, scratch: Path) -> dict:
+    """Generate the pinned file's first `updates` updates in `scratch` against its archived
+    log: {task, agree (through those updates), updates_compared, first_difference, keys}."""
+    import os
+    import re
+    import subprocess
+    import time
+
+    from r2pac_jax.data.factory.collect import read_log
+
+    name = pin["file"]
+    log = archive / task / (Path(name).stem + ".log.jsonl.gz")
+    if not log.is_file():
+        return dict(task=task, file=name, agree=None, note=f"no archived log {log}")
+    m = re.search(r"-b(\d+)\.hdf5$", name)
+    cmd = [sys.executable, "-m", "r2pac_jax.data", "make", "--task", task, "--source",
+           "ppo-lagrangian", "--expect-log", str(log), "--stop-after", str(updates)] + \
+        (["--budget", m.group(1)] if m else [])
+    t0 = time.time()
+    done = subprocess.run(cmd, env=dict(os.environ, R2PAC_DATA_DIR=str(scratch)),
+                          capture_output=True, text=True)
+    partial = scratch / f"{name}.partial" / "log.jsonl"
+    out = dict(task=task, file=name, wall_s=round(time.time() - t0, 1))
+    if done.returncode not in (0, 3) or not partial.is_file():
+        tail = (done.stderr or done.stdout).strip().splitlines()[-1:]
+        return dict(out, agree=None, note=f"the generation failed (exit {done.returncode}): "
+                                          f"{tail[0] if tail else ''}")
+    out.update(compare_logs(read_log(partial), read_log(log)))
+    if done.returncode == 0:  # every update made agrees (compare_logs also wants equal lengths)
+        out["agree"] = True
+    return out
+
+
 def main(argv=None) -> int:
+    if argv is None:
+        argv = sys.argv[1:]
+    if "--probe" in argv:
+        return main_probe(argv)
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("file", type=Path)
     ap.add_argument("--manifest", type=Path,
@@ -128,6 +174,43 @@ def main(argv=None) -> int:
     out = verify(args.file, args.manifest, args.archive)
     print(json.dumps(out, indent=1))
     return 0 if out["agree"] else 1
+
+
+def main_probe(argv) -> int:
+    import tempfile
+
+    ap = argparse.ArgumentParser(description="probe whether pinned files regenerate here")
+    ap.add_argument("--probe", required=True, help="TASK[,TASK...] or all (the manifest's)")
+    ap.add_argument("--updates", type=int, default=3)
+    ap.add_argument("--out", type=Path, default=None, help="JSON lines, one per task")
+    ap.add_argument("--manifest", type=Path,
+                    default=ROOT / "experiments" / "table1" / "cpu-quick" / "manifest.json")
+    ap.add_argument("--archive", type=Path,
+                    default=ROOT / "experiments" / "data_factory" / "results_v2")
+    args = ap.parse_args(argv)
+    if args.updates < 1:
+        print(f"error: --updates must be >= 1, got {args.updates}", file=sys.stderr)
+        return 2
+    pins = json.loads(args.manifest.read_text())["datasets"]
+    tasks = sorted(pins) if args.probe == "all" else [t for t in args.probe.split(",") if t]
+    unknown = [t for t in tasks if t not in pins]
+    if unknown:
+        print(f"error: {', '.join(unknown)}: no pinned file in {args.manifest} (pinned: "
+              f"{', '.join(sorted(pins))})", file=sys.stderr)
+        return 2
+    rows = []
+    for t in tasks:
+        with tempfile.TemporaryDirectory(prefix=f"probe-{t}-") as scratch:
+            r = probe(t, pins[t], args.archive, args.updates, Path(scratch))
+        rows.append(r)
+        said = ("agrees through update %d" % r["updates_compared"] if r.get("agree")
+                else f"parts at update {r['first_difference']} ({', '.join(r['keys'])})"
+                if r.get("agree") is False else r.get("note", ""))
+        print(f"{t}: {said} [{r.get('wall_s', 0)} s]", flush=True)
+        if args.out:
+            with open(args.out, "a") as f:
+                f.write(json.dumps(r) + "\n")
+    return 0 if all(r.get("agree") for r in rows) else 1
 
 
 if __name__ == "__main__":

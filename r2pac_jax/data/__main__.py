@@ -1,6 +1,6 @@
 """`python -m r2pac_jax.data make --task TASK [--source scripted|ppo-lagrangian]
 [--trajectories N] [--seed S] [--budget ENV_STEPS] [--ppo KEY=VALUE ...] [--physics auto|mujoco|mjx]
-[--expect-log LOG] [--force]`;
+[--expect-log LOG] [--stop-after UPDATES] [--force]`;
 `python -m r2pac_jax.data check FILE [--task T] [--fast] [--seeds 100,101,102]`."""
 from __future__ import annotations
 
@@ -46,6 +46,9 @@ def main(argv=None) -> int:
                          "the .log.jsonl.gz archived in results_v2/TASK); the generation stops "
                          "at the first update whose row differs (exit 3), an update in instead "
                          "of hours, its partial state kept")
+    mk.add_argument("--stop-after", type=int, default=None, metavar="UPDATES",
+                    help="ppo-lagrangian: stop after that many updates of this call, resumable "
+                         "(with --expect-log: a probe of whether this machine makes the file)")
     mk.add_argument("--force", action="store_true",
                     help="discard an existing file (and a generation's partial state) first")
     ck = sub.add_parser("check", help="coverage, temptation and imitability of a dataset file "
@@ -69,15 +72,17 @@ def main(argv=None) -> int:
         # refused before any file or lock is made (0 trajectories would read as the default)
         factory.check_at_least_one(trajectories=args.trajectories, budget=args.budget,
                                    num_envs=args.num_envs,
-                                   checkpoint_every=args.checkpoint_every)
+                                   checkpoint_every=args.checkpoint_every,
+                                   stop_after=args.stop_after)
         if args.source is None:
             args.source = factory.default_source(task)
         n = args.trajectories or (task.collection.trajectories
                                   if args.source == "ppo-lagrangian" and task.collection
                                   else factory.default_trajectories(task))
-        if args.expect_log is not None and args.source != "ppo-lagrangian":
-            raise R2pacError(f"--expect-log compares a ppo-lagrangian generation's log; the "
-                             f"{args.source} source keeps none: leave it out")
+        for flag, value in (("--expect-log", args.expect_log), ("--stop-after", args.stop_after)):
+            if value is not None and args.source != "ppo-lagrangian":
+                raise R2pacError(f"{flag} applies to a ppo-lagrangian generation; the "
+                                 f"{args.source} source has no updates: leave it out")
         t0 = time.time()
         if args.source == "ppo-lagrangian":
             trial = factory.parse_recipe_values(args.ppo)
@@ -98,6 +103,8 @@ def main(argv=None) -> int:
 
                 read_log(args.expect_log)  # a missing or unreadable log: refused before any lock
                 extra["expect_log"] = args.expect_log
+            if args.stop_after is not None:
+                extra["stop_after"] = args.stop_after
             path = factory.generate_dataset(task, n, args.seed, source=args.source,
                                             physics=args.physics, env_steps=args.budget,
                                             force=args.force, ppo=ppo, trial=trial,
@@ -120,6 +127,10 @@ def main(argv=None) -> int:
 
         print(f"error: {e}", file=sys.stderr)
         return 3 if isinstance(e, LogMismatch) else 2
+    if path is None:  # --stop-after
+        print(f"stopped after {args.stop_after} updates ({time.time() - t0:.1f} s); the same "
+              "command without --stop-after continues the generation")
+        return 0
     print(f"wrote {path} in {time.time() - t0:.1f} s; card {factory.card_path(path)}; "
           f"plot {path.with_suffix('.png')}")
     return 0

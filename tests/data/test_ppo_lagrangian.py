@@ -298,7 +298,9 @@ def test_data_cli_errors(tmp_path, monkeypatch, capsys):
     assert "no generation log" in capsys.readouterr().err
     assert main(["make", "--task", "ReachAvoid", "--source", "scripted", "--expect-log",
                  str(tmp_path / "no.log.jsonl")]) == 2
-    assert "--expect-log compares a ppo-lagrangian generation's log" in capsys.readouterr().err
+    assert "--expect-log applies to a ppo-lagrangian generation" in capsys.readouterr().err
+    assert main(["make", "--task", "CarGoal2", "--stop-after", "0"]) == 2
+    assert "--stop-after must be >= 1, got 0" in capsys.readouterr().err
     assert not list(tmp_path.glob("CarGoal2-*")) and not list(tmp_path.glob("ReachAvoid-*"))
 
 

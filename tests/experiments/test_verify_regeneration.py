@@ -78,3 +78,50 @@ def test_a_different_regeneration_names_its_first_differing_update_and_fails(tmp
     assert out["arrays"]["agree"] is False
     assert out["log"]["first_difference"] == 2 and out["log"]["keys"] == ["multiplier"]
     assert out["card"]["differences"] == {"trajectories": {"new": 4, "old": 3}}
+
+
+def test_probe_names_the_first_update_that_parts_and_refuses_unknown_tasks(tmp_path, monkeypatch,
+                                                                            capsys):
+    """--probe: each pinned file's first updates made in a scratch cache against its archived
+    log (the generation itself stands in here: what it leaves is read back)."""
+    import subprocess
+
+    m = _mod()
+    arch = tmp_path / "archive"
+    pins = {}
+    for task in ("BallRun", "CarGoal2", "DroneRun"):
+        name = f"{task}-generated-ppolag-v2-s0-n9-b5000.hdf5"
+        pins[task] = {"file": name, "sha256": "x"}
+        if task != "DroneRun":  # DroneRun: no archived log
+            (arch / task).mkdir(parents=True)
+            with gzip.open(arch / task / f"{Path(name).stem}.log.jsonl.gz", "wt") as g:
+                for u in (1, 2, 3, 4):
+                    g.write(json.dumps({"update": u, "multiplier": u * 0.5,
+                                        "t_rollout": 1.0}) + "\n")
+    man = tmp_path / "manifest.json"
+    man.write_text(json.dumps({"datasets": pins}))
+    seen = []
+
+    def fake(cmd, env, **kw):  # CarGoal2 parts at update 2; BallRun agrees on 3, slower
+        task = cmd[cmd.index("--task") + 1]
+        seen.append((task, cmd[cmd.index("--stop-after") + 1], cmd[cmd.index("--budget") + 1]))
+        part = Path(env["R2PAC_DATA_DIR"]) / f"{pins[task]['file']}.partial"
+        part.mkdir(parents=True)
+        rows = [{"update": u, "multiplier": u * 0.5 + (task == "CarGoal2" and u == 2),
+                 "t_rollout": 9.0} for u in ((1, 2) if task == "CarGoal2" else (1, 2, 3))]
+        (part / "log.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+        return subprocess.CompletedProcess(cmd, 3 if task == "CarGoal2" else 0, "", "")
+
+    monkeypatch.setattr(subprocess, "run", fake)
+    out = tmp_path / "probe.jsonl"
+    assert m.main(["--probe", "all", "--manifest", str(man), "--archive", str(arch),
+                   "--out", str(out)]) == 1
+    said = capsys.readouterr().out
+    assert "BallRun: agrees through update 3" in said
+    assert "CarGoal2: parts at update 2 (multiplier)" in said
+    assert "DroneRun: no archived log" in said
+    assert seen == [("BallRun", "3", "5000"), ("CarGoal2", "3", "5000")]
+    rows = {r["task"]: r for r in map(json.loads, out.read_text().splitlines())}
+    assert rows["BallRun"]["agree"] and rows["CarGoal2"]["first_difference"] == 2
+    assert m.main(["--probe", "AntCircle", "--manifest", str(man)]) == 2
+    assert "AntCircle: no pinned file" in capsys.readouterr().err
