@@ -205,3 +205,27 @@ def test_a_pinned_file_is_made_again_against_its_archived_log(tmp_path, monkeypa
     monkeypatch.setattr(subprocess, "run", lambda cmd, **kw: subprocess.CompletedProcess(cmd, 1))
     with pytest.raises(ValueError, match=r"making .* failed \(exit 1"):
         mod.pinned_file("HalfCheetahVelocity", log=lambda m: None)
+
+
+def test_run_sh_skips_a_task_left_out_of_the_confirmation_and_runs_the_others(tmp_path):
+    """run.sh confirm: a task in either record is skipped before any file or cell; another
+    task goes on to its pinned file (here a stand-in decide.py that refuses it)."""
+    import shutil
+    import subprocess
+
+    here = tmp_path / "experiments" / "r2pac_decision"
+    here.mkdir(parents=True)
+    shutil.copy(Path(__file__).parents[2] / "experiments" / "r2pac_decision" / "run.sh", here)
+    (here / "left_out.json").write_text('{"Walker2dVelocity": "x"}')
+    (here / "left_out_confirmation.json").write_text('{"BallRun": "did not regenerate"}')
+    (here / "decide.py").write_text("import sys\nprint('asked', sys.argv[1:], file=sys.stderr)\n"
+                                    "sys.exit(1)\n")
+    out = subprocess.run(["bash", str(here / "run.sh"), "confirm", "b"], capture_output=True,
+                         text=True, env={"PATH": __import__("os").environ["PATH"],
+                                         "TASKS": "BallRun Walker2dVelocity CarGoal2",
+                                         "OUT": str(tmp_path / "runs")})
+    said = out.stdout + out.stderr
+    assert "== BallRun: left out of the confirmation" in said
+    assert "== Walker2dVelocity: left out of the confirmation" in said
+    assert "'--file', 'BallRun'" not in said and "'--file', 'CarGoal2'" in said
+    assert said.count("!! CarGoal2: no pinned file") == 2  # its two cells, 0 and b
