@@ -6,7 +6,8 @@ scores.
         [--selection RUNS]   # also re-evaluate each baseline cell's run found under RUNS
         [--out experiments/r2pac_decision/where_reward_went.md]
 
-From each kept cell: the scores, the evaluation's diagnostics (results.json: episode length,
+From each kept cell (the decision's seeds 0-2 and, once kept, the confirmation's seeds 3-5):
+the scores, the evaluation's diagnostics (results.json: episode length,
 the share ended by a true terminal, how often the choice is not the first candidate, the Qbar_r
 it gives up, the candidates' spreads, the share of visited states with V_c > l) and, where the
 cell's metrics.jsonl was kept, the training's (the end of the critic phase: V_c's batch minimum,
@@ -78,29 +79,20 @@ def _fmt(x) -> str:
     return "-" if x is None else f"{x:.3g}"
 
 
-def tables(root: Path) -> str:
-    cells = cell_dirs(root)
-    lines = ["# Where R2PAC's reward went: the decision tasks before and after", "",
-             "From `experiments/r2pac_decision/writeup.py` over the kept cells (seeds 0-2, CPU "
-             "quick preset, 20 evaluation episodes per seed; seed means).", "",
-             "## Evaluation", "",
-             "| task | candidate | reward | cost | " + " | ".join(e[1] for e in EVAL) + " |",
-             "|---|---|---|---|" + "---|" * len(EVAL)]
-    train_lines = ["", "## Training (the last block of each phase; cells whose metrics were kept)",
-                   "", "| task | candidate | " + " | ".join(t[1] for t in TRAIN) + " |",
-                   "|---|---|" + "---|" * len(TRAIN)]
-    sel_lines = ["", "## Selection rules on the baseline cells (`python -m r2pac_jax.evaluate`, "
-                 "evaluation keys of seed 123)", ""]
-    missing_train = []
+def _cell_tables(cells: dict, candidates) -> tuple[list, list, list]:
+    """The evaluation rows, training rows and cells without kept metrics of `cells`
+    (task -> candidate -> folder), in the candidates' order."""
+    ev_lines, train_lines, missing_train = [], [], []
     for task, by in cells.items():
-        for c in CANDIDATES:
+        for c in candidates:
             d = by.get(c)
             if d is None:
-                lines.append(f"| {task} | {NAMES[c]} | not run | | " + "| " * len(EVAL))
+                ev_lines.append(f"| {task} | {NAMES[c]} | not run | | " + "| " * len(EVAL))
                 continue
             ev = eval_row(json.loads((d / "results.json").read_text()))
-            lines.append(f"| {task} | {NAMES[c]} | {_fmt(ev['reward'])} | {_fmt(ev['cost'])} | "
-                         + " | ".join(_fmt(ev[e[0]]) for e in EVAL) + " |")
+            ev_lines.append(f"| {task} | {NAMES[c]} | {_fmt(ev['reward'])} | "
+                            f"{_fmt(ev['cost'])} | " + " | ".join(_fmt(ev[e[0]]) for e in EVAL)
+                            + " |")
             m = d / "metrics.jsonl"
             if m.is_file():
                 rows = [json.loads(ln) for ln in m.read_text().splitlines() if ln.strip()]
@@ -109,6 +101,27 @@ def tables(root: Path) -> str:
                                    + " | ".join(_fmt(tr[t[0]]) for t in TRAIN) + " |")
             else:
                 missing_train.append(f"{task}/{c}")
+    return ev_lines, train_lines, missing_train
+
+
+EVAL_HEAD = ["| task | candidate | reward | cost | " + " | ".join(e[1] for e in EVAL) + " |",
+             "|---|---|---|---|" + "---|" * len(EVAL)]
+TRAIN_HEAD = ["| task | candidate | " + " | ".join(t[1] for t in TRAIN) + " |",
+              "|---|---|" + "---|" * len(TRAIN)]
+
+
+def tables(root: Path) -> str:
+    cells = cell_dirs(root)
+    ev, train, missing_train = _cell_tables(cells, CANDIDATES)
+    lines = ["# Where R2PAC's reward went: the decision tasks before and after", "",
+             "From `experiments/r2pac_decision/writeup.py` over the kept cells (seeds 0-2, CPU "
+             "quick preset, 20 evaluation episodes per seed; seed means).", "",
+             "## Evaluation", ""] + EVAL_HEAD + ev
+    train_lines = ["", "## Training (the last block of each phase; cells whose metrics were kept)",
+                   ""] + TRAIN_HEAD + train
+    sel_lines = ["", "## Selection rules on the baseline cells (`python -m r2pac_jax.evaluate`, "
+                 "evaluation keys of seed 123)", ""]
+    for task, by in cells.items():
         s = by.get("0", Path("/nonexistent")) / "selection.json"
         if s.is_file():
             from r2pac_jax.evaluate import selection_table
@@ -118,7 +131,17 @@ def tables(root: Path) -> str:
     if missing_train:
         train_lines += ["", "No training metrics kept (run on a machine that is gone, before "
                         "`run.sh keep` kept them): " + ", ".join(missing_train) + "."]
-    return "\n".join(lines + train_lines + sel_lines)
+    conf = cell_dirs(root, "seeds3-5")
+    conf_lines = []
+    if conf:  # the confirmation: the baseline and the winner, the same diagnostics
+        ids = [c for c in CANDIDATES if any(c in by for by in conf.values())]
+        ev, train, missing = _cell_tables(conf, ids)
+        conf_lines = ["", "## Confirmation (seeds 3-5): the same diagnostics, baseline and winner",
+                      "", "Evaluation:", ""] + EVAL_HEAD + ev + [
+                      "", "Training (the last block of each phase):", ""] + TRAIN_HEAD + train
+        if missing:
+            conf_lines += ["", "No training metrics kept: " + ", ".join(missing) + "."]
+    return "\n".join(lines + train_lines + sel_lines + conf_lines)
 
 
 def add_selection(root: Path, runs: Path, episodes: int = 20, log=print) -> list[str]:

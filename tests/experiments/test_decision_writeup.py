@@ -54,3 +54,23 @@ def test_selection_rules_are_kept_beside_the_baseline_cell(tiny_run, tmp_path):
     md = wu.tables(root)
     assert "| min_qc (trained) |" in md and "| first |" in md
     assert wu.add_selection(root, runs, episodes=2, log=lambda m: None) == []  # kept: not again
+
+
+def test_the_confirmation_cells_get_their_own_tables(tiny_run, tmp_path):
+    """Kept seeds 3-5 cells (baseline and winner) get the same diagnostics in a section of their
+    own; a winner's cell not yet run is said."""
+    root = tmp_path / "cells"
+    _keep(tiny_run["run"], root / "seeds0-2" / "BallRun" / "0")
+    _keep(tiny_run["run"], root / "seeds3-5" / "BallRun" / "0")
+    _keep(tiny_run["run"], root / "seeds3-5" / "CarGoal2" / "b", metrics=False)
+    md = wu.tables(root)
+    assert "## Confirmation (seeds 3-5)" in md
+    conf = md.split("## Confirmation (seeds 3-5)")[1]
+    res = json.loads((tiny_run["run"] / "results.json").read_text())
+    row = next(ln for ln in conf.splitlines() if ln.startswith("| BallRun | 0 (default)"))
+    assert f"| {res['normalized_reward']['mean']:.3g} |" in row
+    assert "| BallRun | b (V_c >= 0) | not run |" in conf
+    assert "| CarGoal2 | 0 (default) | not run |" in conf
+    assert "a (LayerNorm critics)" not in conf  # only the candidates the confirmation ran
+    assert "No training metrics kept: CarGoal2/b." in conf
+    assert "## Confirmation" not in wu.tables(tmp_path / "none")  # no seeds 3-5: no section
