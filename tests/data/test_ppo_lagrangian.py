@@ -162,6 +162,23 @@ def test_resumed_generation_equals_an_uninterrupted_one(name, kw, tmp_path):
         np.testing.assert_array_equal(a["next_observations"][inner], a["observations"][inner + 1])
 
 
+def test_an_update_row_is_checked_against_the_expected_log(tmp_path):
+    """The check itself (the generation below runs it after each row and on resume): wall-clock
+    fields aside, a differing row names its update and values; updates past the log pass."""
+    task = get_task("ReachAvoid")
+    spec = collect.make_spec(task, RA["trajectories"], RA["env_steps"], ppo=RA["ppo"])
+    rows = [dict(update=1, multiplier=0.0, episode_return=1.5, steps_per_s=10.0)]
+    gen = collect.Generation(task, spec, tmp_path / "p", expected=(rows, "pin.log.jsonl.gz"))
+    gen._check_row(dict(rows[0], steps_per_s=99.0, t_rollout=3.0))  # timings only: agrees
+    gen._check_row(dict(update=2, multiplier=5.0))  # past the expected log: nothing to match
+    with pytest.raises(collect.LogMismatch, match=r"ReachAvoid: update 1 of the generation differs "
+                                                  r"from pin.log.jsonl.gz \(episode_return 1.25 "
+                                                  r"here, 1.5 expected\)"):
+        gen._check_row(dict(rows[0], episode_return=1.25))
+    collect.Generation(task, spec, tmp_path / "q")._check_row(dict(update=1))  # no log: no check
+
+
+@pytest.mark.slow  # two generations' compilations (python -m pytest -m slow)
 def test_an_expected_log_stops_a_generation_at_its_first_differing_update(tmp_path):
     """A machine that does not make a pinned file again is told an update in, not hours later
     by the digest: the generation stops at the first row that differs from the file's log
