@@ -459,9 +459,6 @@ def _write_table(out: Path, cells: dict, manifest: dict, algos, args, log) -> No
     log(f"\n{out / 'table.md'}, {out / 'table.csv'}, {out / 'table.png'}")
 
 
-_BUDGET_IN_NAME = re.compile(r"-b(\d+)\.hdf5$")
-
-
 def row_budget(task_name: str, file: str, row: dict) -> Optional[dict]:
     """{env_steps, dsrl_env_steps} of the file a row stands on: from its cells' results.json
     (`data_budget`, recorded since 2026-12-06), else from the file's name (a learned file at a
@@ -473,8 +470,8 @@ def row_budget(task_name: str, file: str, row: dict) -> Optional[dict]:
     coll = get_task(task_name).collection
     if coll is None or "-generated-ppolag-" not in file:
         return None
-    m = _BUDGET_IN_NAME.search(file)
-    return dict(env_steps=int(m.group(1)) if m else coll.env_steps,
+    budget = factory.budget_in_name(file)
+    return dict(env_steps=coll.env_steps if budget is None else budget,
                 dsrl_env_steps=coll.env_steps)
 
 

@@ -130,20 +130,18 @@ def probe(task: str, pin: dict, archive: Path, updates: int, scratch: Path) -> d
     """Generate the pinned file's first `updates` updates in `scratch` against its archived
     log: {task, agree (through those updates), updates_compared, first_difference, keys}."""
     import os
-    import re
     import subprocess
     import time
 
+    from r2pac_jax.data.factory import make_command
     from r2pac_jax.data.factory.collect import read_log
 
     name = pin["file"]
     log = archive / task / (Path(name).stem + ".log.jsonl.gz")
     if not log.is_file():
         return dict(task=task, file=name, agree=None, note=f"no archived log {log}")
-    m = re.search(r"-b(\d+)\.hdf5$", name)
-    cmd = [sys.executable, "-m", "r2pac_jax.data", "make", "--task", task, "--source",
-           "ppo-lagrangian", "--expect-log", str(log), "--stop-after", str(updates)] + \
-        (["--budget", m.group(1)] if m else [])
+    cmd = [sys.executable] + make_command(task, name) + ["--expect-log", str(log),
+                                                         "--stop-after", str(updates)]
     t0 = time.time()
     done = subprocess.run(cmd, env=dict(os.environ, R2PAC_DATA_DIR=str(scratch)),
                           capture_output=True, text=True)

@@ -119,7 +119,6 @@ def pin(task: str) -> dict:
 def pinned_file(task: str, make: bool = True, log=print) -> Path:
     """The task's pinned file in the data cache, made again first where missing (at the budget
     its name records), and refused unless its arrays' digest is the pin."""
-    import re
     import subprocess
 
     from r2pac_jax.data import factory, load_dsrl
@@ -128,9 +127,7 @@ def pinned_file(task: str, make: bool = True, log=print) -> Path:
     want = pin(task)
     path = factory.cache_dir() / want["file"]
     if not path.is_file() and make:
-        m = re.search(r"-b(\d+)\.hdf5$", want["file"])
-        cmd = [sys.executable, "-m", "r2pac_jax.data", "make", "--task", task, "--source",
-               "ppo-lagrangian"] + (["--budget", m.group(1)] if m else [])
+        cmd = [sys.executable] + factory.make_command(task, want["file"])
         # the pinned file's archived log: a machine that does not make it again bit for bit is
         # found at the first update that differs, not hours later by the digest
         archived = ARCHIVE / task / (Path(want["file"]).stem + ".log.jsonl.gz")

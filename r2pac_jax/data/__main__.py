@@ -123,10 +123,8 @@ def main(argv=None) -> int:
                                                 source=args.source, physics=args.physics,
                                                 force=args.force)
     except R2pacError as e:
-        from r2pac_jax.data.factory.collect import LogMismatch
-
         print(f"error: {e}", file=sys.stderr)
-        return 3 if isinstance(e, LogMismatch) else 2
+        return 3 if isinstance(e, factory.LogMismatch) else 2
     if path is None:  # --stop-after
         print(f"stopped after {args.stop_after} updates ({time.time() - t0:.1f} s); the same "
               "command without --stop-after continues the generation")

@@ -544,3 +544,17 @@ def test_stagger_starts_spreads_episode_phases_and_keeps_only_whole_episodes(sta
     lengths = [e[3] for e in state["pool"]]
     assert lengths and all(n == t.episode_len for n in lengths)  # whole episodes only
     assert len(lengths) <= sum(finished)
+
+
+def test_make_command_reads_back_the_budget_dataset_path_writes(tmp_path, monkeypatch):
+    """The inverse of the file's name: a file at another budget is made again at that budget,
+    one at DSRL's with none named."""
+    monkeypatch.setenv("R2PAC_DATA_DIR", str(tmp_path))
+    t = get_task("CarGoal2")
+    cut = factory.dataset_path(t, 0, 4105, "ppo-lagrangian", 5_000_000).name
+    full = factory.learned_path(t).name
+    assert factory.budget_in_name(cut) == 5_000_000 and factory.budget_in_name(full) is None
+    assert factory.make_command("CarGoal2", cut) == [
+        "-m", "r2pac_jax.data", "make", "--task", "CarGoal2", "--source", "ppo-lagrangian",
+        "--budget", "5000000"]
+    assert "--budget" not in factory.make_command("CarGoal2", full)

@@ -23,6 +23,7 @@ atomically and the card last, so a dataset counts as present only when both exis
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Callable, Optional, Union
 
@@ -35,6 +36,11 @@ from r2pac_jax.tasks import TaskSpec
 class FactoryError(DatasetError):
     """A dataset cannot be generated (no source, bad size, unwritable cache); the message says
     the fix. A DatasetError, so the train CLI reports it like any other data problem."""
+
+
+class LogMismatch(DatasetError):
+    """A generation's log parts from the log of the file it was to make again
+    (`data make --expect-log`, exit 3)."""
 
 
 def _sources() -> dict[str, dict]:
@@ -170,6 +176,24 @@ def dataset_path(task: TaskSpec, seed: int, trajectories: int, source: str = "sc
     budget = "" if env_steps in (None, task.collection.env_steps) else f"-b{env_steps}"
     return cache_dir() / (f"{task.name}-generated-ppolag-v{DATA_VERSION}-s{seed}-"
                           f"n{trajectories}{budget}{_trial_tag(trial)}.hdf5")
+
+
+_BUDGET_IN_NAME = re.compile(r"-b(\d+)\.hdf5$")
+
+
+def budget_in_name(name: str) -> Optional[int]:
+    """The RL budget a learned file's name carries (`dataset_path`'s `-b<env steps>`: a budget
+    other than DSRL's); None where it carries none."""
+    m = _BUDGET_IN_NAME.search(str(name))
+    return int(m.group(1)) if m else None
+
+
+def make_command(task_name: str, file_name: str) -> list[str]:
+    """The `python -m r2pac_jax.data make` argv (from `-m` on) that makes the learned file
+    named `file_name` again: its task, source and, where the name carries one, its budget."""
+    budget = budget_in_name(file_name)
+    return ["-m", "r2pac_jax.data", "make", "--task", task_name, "--source", "ppo-lagrangian"] \
+        + (["--budget", str(budget)] if budget is not None else [])
 
 
 def learned_path(task: TaskSpec, seed: int = 0, env_steps: Optional[int] = None) -> Path:

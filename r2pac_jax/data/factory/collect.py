@@ -39,6 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from r2pac_jax.data.dsrl import DatasetError
+from r2pac_jax.data.factory import LogMismatch
 from r2pac_jax.data.factory import ppo_lagrangian as pl
 from r2pac_jax.data.factory.thinning import thin_by_density
 from r2pac_jax.tasks import TaskSpec
@@ -66,10 +67,6 @@ CPU2_STEPS_PER_S = {
 # A log row's wall-clock fields: they differ between any two runs; the data never depend on them
 TIMING_KEYS = frozenset({"steps_per_s", "t_rollout", "t_physics", "t_pool", "t_update",
                          "t_checkpoint_before"})
-
-
-class LogMismatch(DatasetError):
-    """A generation's log parts from the log of the file it was to make again."""
 
 
 def read_log(path) -> list[dict]:
