@@ -26,6 +26,11 @@ class DatasetError(R2pacError, ValueError):
     """A dataset file is missing, unreadable or inconsistent."""
 
 
+class LogMismatch(DatasetError):
+    """A generation's log parts from the log of the file it was to make again
+    (`data make --expect-log`, exit 3)."""
+
+
 @dataclasses.dataclass
 class Dataset:
     """Transitions in numpy arrays; shapes [N, obs_dim], [N, act_dim] and [N]."""

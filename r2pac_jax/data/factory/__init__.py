@@ -27,7 +27,7 @@ import re
 from pathlib import Path
 from typing import Callable, Optional, Union
 
-from r2pac_jax.data.dsrl import DatasetError, validate, write_dsrl
+from r2pac_jax.data.dsrl import DatasetError, LogMismatch, validate, write_dsrl  # noqa: F401
 from r2pac_jax.data.factory.card import card_path, data_budget, make_card  # noqa: F401 (API)
 from r2pac_jax.io import atomic_write_json
 from r2pac_jax.tasks import TaskSpec
@@ -36,11 +36,6 @@ from r2pac_jax.tasks import TaskSpec
 class FactoryError(DatasetError):
     """A dataset cannot be generated (no source, bad size, unwritable cache); the message says
     the fix. A DatasetError, so the train CLI reports it like any other data problem."""
-
-
-class LogMismatch(DatasetError):
-    """A generation's log parts from the log of the file it was to make again
-    (`data make --expect-log`, exit 3)."""
 
 
 def _sources() -> dict[str, dict]:

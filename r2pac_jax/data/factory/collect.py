@@ -38,8 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from r2pac_jax.data.dsrl import DatasetError
-from r2pac_jax.data.factory import LogMismatch
+from r2pac_jax.data.dsrl import DatasetError, LogMismatch
 from r2pac_jax.data.factory import ppo_lagrangian as pl
 from r2pac_jax.data.factory.thinning import thin_by_density
 from r2pac_jax.tasks import TaskSpec
